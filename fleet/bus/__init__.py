@@ -1,0 +1,42 @@
+"""The bus: how the engine talks to robot agents over ZeroMQ.
+
+`schema` is the versioned wire format, `transport` the address checks and sockets, `exchange`
+the engine's side (`Exchange`: one OBSERVE/ACT round trip per control tick) and `agent` the
+robots' side (`AgentHost`: wraps the controllers of the robots it hosts). The same classes work
+in one process over ``inproc://`` (pumped synchronously, deterministic) and across processes
+over ``ipc://`` and ``tcp://``.
+"""
+
+from fleet.bus.agent import AGENT_STATS, AgentHost, braking_command
+from fleet.bus.exchange import EXCHANGE_STATS, Exchange
+from fleet.bus.schema import (
+    SCHEMA_VERSION,
+    Message,
+    MessageKind,
+    command_from_wire,
+    command_to_wire,
+    decode,
+    encode,
+    observation_from_wire,
+    observation_to_wire,
+)
+from fleet.bus.transport import AddressError, parse_address
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "MessageKind",
+    "Message",
+    "encode",
+    "decode",
+    "observation_to_wire",
+    "observation_from_wire",
+    "command_to_wire",
+    "command_from_wire",
+    "AddressError",
+    "parse_address",
+    "Exchange",
+    "EXCHANGE_STATS",
+    "AgentHost",
+    "AGENT_STATS",
+    "braking_command",
+]

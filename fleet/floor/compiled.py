@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import networkx as nx
 import numpy as np
@@ -138,6 +139,18 @@ class Floor:
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         return tuple(self.spec.boundary.bounds)  # type: ignore[return-value]
+
+    @cached_property
+    def free_space_tolerant(self) -> Polygon | MultiPolygon:
+        """The free space grown by `TOLERANCE` (prepared): forgives rounding on its boundary."""
+        grown = self.free_space.buffer(TOLERANCE, join_style="mitre")
+        shapely.prepare(grown)
+        return grown
+
+    @property
+    def tree(self) -> STRtree:
+        """Spatial index over the region polygons (item i is `regions[i]`)."""
+        return self._tree
 
     @property
     def max_speed(self) -> float:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from shapely.geometry import Polygon
+from shapely.geometry import MultiPolygon, Polygon
 
 __all__ = ["Obstacle", "SpeedZone", "Station", "RoughArea", "FloorSpec"]
 
@@ -26,7 +26,7 @@ class SpeedZone:
     """An area with a per-axis speed limit; where zones overlap the lowest limit wins."""
 
     name: str
-    polygon: Polygon
+    polygon: Polygon | MultiPolygon  # an `around` zone clipped by the floor may split
     v_max: tuple[float, float]
 
 

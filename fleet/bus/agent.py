@@ -1,0 +1,297 @@
+"""The agent side of the bus: one host serving the controllers of several robots.
+
+An `AgentHost` connects to the engine's `Exchange`, introduces itself with HELLO (the robots it
+hosts), and then answers every OBSERVE with one ACT holding a command per observed robot. It
+never raises on what it receives: malformed, unexpected or stale messages are logged on the
+``fleet.bus`` logger, counted in `AgentHost.stats` and dropped. A controller that raises, or
+returns something that is not a valid `Command`, gets its robot a braking command with
+`ControlStatus.ERROR`, and the host keeps going.
+
+In one process the engine pumps local hosts itself (`Exchange.add_local`); in another process
+(or thread) call `AgentHost.serve`, which returns when the exchange says BYE.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import time
+from collections.abc import Mapping
+
+import zmq
+
+from fleet.bus.schema import Message, MessageKind, command_to_wire, decode, encode
+from fleet.bus.transport import connect_dealer, default_context
+from fleet.errors import MessageError, PluginError
+from fleet.plugins import Command, Controller, ControlStatus, Observation
+
+__all__ = ["AgentHost", "AGENT_STATS", "braking_command"]
+
+#: Counters kept in `AgentHost.stats`.
+AGENT_STATS = (
+    "messages_received",
+    "messages_sent",
+    "messages_rejected",
+    "stale",
+    "observations",
+    "unknown_robots",
+    "controller_errors",
+)
+
+# Plain ints: pyzmq's enum flags cost microseconds per operation on the hot path.
+_EVENTS, _POLLIN, _NOBLOCK = int(zmq.EVENTS), int(zmq.POLLIN), int(zmq.NOBLOCK)
+_EXPECT = (MessageKind.WELCOME, MessageKind.OBSERVE, MessageKind.BYE)
+_names = itertools.count(1)
+
+
+def braking_command(controller: Controller, obs: Observation) -> Command:
+    """The command substituted when `controller` failed: brake as hard as allowed, per axis.
+
+    ``a = -clip(v / dt, -a_max, a_max)`` with ``dt`` and ``a_max`` from the robot's spec in the
+    controller's context (set by `Controller.reset`); zero acceleration if there is no context.
+    """
+    spec = getattr(getattr(controller, "context", None), "spec", None)
+    if spec is None or not spec.period > 0:
+        return Command(0.0, 0.0, ControlStatus.ERROR)
+    dt, a_max = spec.period, spec.a_max
+    ax = -max(-a_max, min(a_max, obs.vx / dt))
+    ay = -max(-a_max, min(a_max, obs.vy / dt))
+    # -0.0 would print oddly in logs and traces; a robot at rest gets exactly zero.
+    return Command(ax + 0.0, ay + 0.0, ControlStatus.ERROR)
+
+
+class AgentHost:
+    """Hosts the controllers of some robots and answers the exchange on their behalf.
+
+    Parameters
+    ----------
+    address:
+        The exchange's address (`Exchange.address`).
+    controllers:
+        Robot id to its controller, already `reset` with its context.
+    name:
+        Name used as ``sender`` and in logs; default ``agent-<pid>-<n>``. Must be unique among
+        the agents of one exchange.
+    context:
+        ZeroMQ context; default the process-wide one (inproc needs the exchange's).
+    log:
+        Logger; default ``fleet.bus``.
+
+    Attributes
+    ----------
+    accepted:
+        Robots the exchange accepted (from WELCOME); None until WELCOME arrives.
+    rejected:
+        Robots the exchange refused, with its reason.
+    finished:
+        True once the exchange said BYE.
+    stats:
+        Counters named in `AGENT_STATS`.
+    """
+
+    def __init__(
+        self,
+        address: str,
+        controllers: Mapping[str, Controller],
+        *,
+        name: str | None = None,
+        context: zmq.Context | None = None,
+        log: logging.Logger | None = None,
+    ) -> None:
+        for robot, controller in controllers.items():
+            if not isinstance(robot, str) or not robot:
+                raise PluginError(f"agent host: robot id {robot!r} must be a non-empty string")
+            if not isinstance(controller, Controller):
+                raise PluginError(
+                    f"agent host: controller for robot {robot!r} is a"
+                    f" {type(controller).__name__}, not a fleet.plugins.Controller"
+                )
+        if name is None:
+            name = f"agent-{os.getpid()}-{next(_names)}"
+        elif not isinstance(name, str) or not name:
+            raise ValueError(f"agent host name {name!r} must be a non-empty string")
+        self.name = name
+        self.address = address
+        self.context = context if context is not None else default_context()
+        self.log = log if log is not None else logging.getLogger("fleet.bus")
+        self.controllers: dict[str, Controller] = dict(sorted(controllers.items()))
+        self.stats: dict[str, int] = dict.fromkeys(AGENT_STATS, 0)
+        self.accepted: frozenset[str] | None = None
+        self.rejected: dict[str, str] = {}
+        self.exchange: str | None = None
+        self.finished = False
+        self.closed = False
+        self._last_tick = -1
+        self._failed: set[str] = set()
+        self.socket = connect_dealer(self.context, address)
+        self._send(MessageKind.HELLO, 0, {"robots": list(self.controllers)})
+
+    # -- running ----------------------------------------------------------------------------
+    def pump(self, timeout_ms: int | None = 0) -> bool:
+        """Handle at most one incoming message, waiting up to `timeout_ms` (None: forever).
+
+        Returns True if a message was received (whether handled or dropped), False if none
+        came in time or the host is closed.
+        """
+        if self.closed:
+            return False
+        sock = self.socket
+        if timeout_ms == 0:
+            # Asking for EVENTS is much cheaper than a recv that fails with zmq.Again.
+            if not sock.getsockopt(_EVENTS) & _POLLIN:
+                return False
+        elif not sock.poll(timeout_ms, zmq.POLLIN):
+            return False
+        try:
+            frames = sock.recv_multipart(_NOBLOCK)
+        except zmq.Again:
+            return False
+        self.stats["messages_received"] += 1
+        if len(frames) != 1:
+            self._reject(f"{len(frames)} frames, expected 1")
+            return True
+        try:
+            msg = decode(frames[0], _EXPECT)
+        except MessageError as exc:
+            self._reject(str(exc))
+            return True
+        if msg.kind is MessageKind.OBSERVE:
+            self._observe(msg)
+        elif msg.kind is MessageKind.WELCOME:
+            self._welcome(msg)
+        else:
+            self._bye(msg)
+        return True
+
+    def serve(self, idle_timeout_s: float | None = None) -> None:
+        """Answer the exchange until it says BYE (or nothing arrives for `idle_timeout_s`).
+
+        Does not close the host; call `close` (or use ``with``) afterwards.
+        """
+        last = time.monotonic()
+        while not self.finished and not self.closed:
+            if idle_timeout_s is None:
+                self.pump(None)
+                continue
+            remaining = idle_timeout_s - (time.monotonic() - last)
+            if remaining <= 0:
+                self.log.warning(
+                    "agent %s: nothing from the exchange for %g s; stopping",
+                    self.name,
+                    idle_timeout_s,
+                )
+                return
+            if self.pump(max(1, int(remaining * 1000))):
+                last = time.monotonic()
+
+    def close(self) -> None:
+        """Say BYE (unless the exchange already did) and close the socket. Idempotent."""
+        if self.closed:
+            return
+        if not self.finished:
+            self._send(MessageKind.BYE, max(self._last_tick, 0), {"reason": "agent closing"})
+        self.socket.close()
+        self.closed = True
+
+    def __enter__(self) -> AgentHost:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<AgentHost {self.name!r} -> {self.address}: {len(self.controllers)} robots>"
+
+    # -- handlers ---------------------------------------------------------------------------
+    def _welcome(self, msg: Message) -> None:
+        accepted = msg.body["accepted"]
+        strangers = [r for r in accepted if r not in self.controllers]
+        if strangers:
+            self._reject(f"WELCOME from {msg.sender!r} accepts robots we do not host: {strangers}")
+            return
+        self.exchange = msg.sender
+        self.accepted = frozenset(accepted)
+        self.rejected = dict(msg.body["rejected"])
+        for robot, reason in sorted(self.rejected.items()):
+            self.log.warning("agent %s: exchange refused robot %s: %s", self.name, robot, reason)
+
+    def _observe(self, msg: Message) -> None:
+        if self.accepted is None:
+            self._reject(f"OBSERVE from {msg.sender!r} before WELCOME")
+            return
+        if msg.sender != self.exchange:
+            self._reject(
+                f"OBSERVE from unknown sender {msg.sender!r} (exchange is {self.exchange!r})"
+            )
+            return
+        if msg.tick <= self._last_tick:
+            self.stats["stale"] += 1
+            self.log.warning(
+                "agent %s: dropped stale OBSERVE for tick %d (already at tick %d)",
+                self.name,
+                msg.tick,
+                self._last_tick,
+            )
+            return
+        self._last_tick = msg.tick
+        commands: dict[str, dict] = {}
+        accepted = self.accepted
+        for obs in msg.body["observations"]:
+            robot = obs.robot
+            if robot not in accepted or robot in commands:
+                self.stats["unknown_robots"] += 1
+                self.log.warning(
+                    "agent %s: tick %d: observation of robot %s, which %s",
+                    self.name,
+                    msg.tick,
+                    robot,
+                    "appears twice" if robot in commands else "this host does not serve",
+                )
+                continue
+            commands[robot] = self._compute(robot, obs)
+        self.stats["observations"] += len(commands)
+        self._send(MessageKind.ACT, msg.tick, {"commands": commands})
+
+    def _compute(self, robot: str, obs: Observation) -> dict:
+        controller = self.controllers[robot]
+        try:
+            return command_to_wire(controller.compute(obs))
+        except Exception as exc:  # a plugin may raise anything; the fleet must keep running
+            self.stats["controller_errors"] += 1
+            first = robot not in self._failed
+            self._failed.add(robot)
+            self.log.warning(
+                "agent %s: robot %s: controller %s failed at tick %d (%s: %s); braking",
+                self.name,
+                robot,
+                type(controller).__name__,
+                obs.tick,
+                type(exc).__name__,
+                exc,
+                exc_info=first,  # the traceback once per robot, not every tick
+            )
+            return command_to_wire(braking_command(controller, obs))
+
+    def _bye(self, msg: Message) -> None:
+        if self.exchange is not None and msg.sender != self.exchange:
+            self._reject(f"BYE from unknown sender {msg.sender!r}")
+            return
+        self.finished = True
+        self.log.info(
+            "agent %s: exchange %s said bye: %s", self.name, msg.sender, msg.body["reason"]
+        )
+
+    # -- plumbing ---------------------------------------------------------------------------
+    def _send(self, kind: MessageKind, tick: int, body: dict) -> None:
+        raw = encode(kind, self.name, tick, body)
+        try:
+            self.socket.send(raw, _NOBLOCK)
+        except zmq.ZMQError as exc:
+            self.log.warning("agent %s: could not send %s: %s", self.name, kind.name, exc)
+            return
+        self.stats["messages_sent"] += 1
+
+    def _reject(self, why: str) -> None:
+        self.stats["messages_rejected"] += 1
+        self.log.warning("agent %s: dropped message: %s", self.name, why)

@@ -1,0 +1,175 @@
+"""Thin wrappers over pyzmq: address checking and the two socket roles of the bus.
+
+The engine's `Exchange` binds a ROUTER; every `AgentHost` connects a DEALER to it. Three
+transports are supported, all with the same classes:
+
+``inproc://<name>``
+    Within one process (and one `zmq.Context`); the default, used with synchronous pumping.
+``ipc://<path>``
+    Between processes on one machine, through a Unix socket file (path at most 107 bytes).
+``tcp://<host>:<port>``
+    Between machines. When binding, the port may be ``*`` (or 0) to let the system choose;
+    the chosen one is reported by `bind_router`.
+
+inproc only works when both ends share one `zmq.Context` and the ROUTER binds first; use
+`default_context()` (the process-wide ``zmq.Context.instance()``) on both sides.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+from dataclasses import dataclass
+
+import zmq
+
+from fleet.errors import MessageError
+
+__all__ = [
+    "AddressError",
+    "Address",
+    "parse_address",
+    "new_inproc_address",
+    "default_context",
+    "bind_router",
+    "connect_dealer",
+    "LINGER_MS",
+]
+
+#: How long a closed socket keeps trying to deliver queued messages (e.g. a final BYE).
+LINGER_MS = 1000
+
+_ALLOWED = "use 'inproc://<name>', 'ipc:///<path>' or 'tcp://<host>:<port>'"
+# sockaddr_un.sun_path holds 108 bytes including the terminating NUL.
+_IPC_PATH_MAX = 107
+_HOST = re.compile(r"^(\*|\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+)$")
+_inproc_ids = itertools.count(1)
+
+
+class AddressError(MessageError, ValueError):
+    """A bus address is malformed, unsupported, or cannot be bound or connected.
+
+    Derives from `ValueError` too, so code validating a configuration value may catch either.
+    """
+
+
+@dataclass(frozen=True, slots=True)
+class Address:
+    """A checked bus address: `transport` is ``inproc``, ``ipc`` or ``tcp``."""
+
+    transport: str
+    target: str
+
+    def __str__(self) -> str:
+        return f"{self.transport}://{self.target}"
+
+
+def parse_address(address: str, *, bind: bool = False) -> Address:
+    """Check a bus address and split it.
+
+    Parameters
+    ----------
+    address:
+        ``inproc://<name>``, ``ipc://<path>`` or ``tcp://<host>:<port>``.
+    bind:
+        Whether the address is for binding: only then may a tcp host or port be ``*`` (a tcp
+        port may also be 0).
+
+    Raises
+    ------
+    AddressError
+        Quoting the address and saying what is allowed.
+    """
+
+    def bad(rule: str) -> AddressError:
+        return AddressError(f"bus address {address!r}: {rule}; {_ALLOWED}")
+
+    if not isinstance(address, str):
+        raise bad("must be a string")
+    transport, sep, target = address.partition("://")
+    if not sep or not target:
+        raise bad("must look like '<transport>://<target>'")
+    if any(c.isspace() for c in address):
+        raise bad("must not contain whitespace")
+    if transport == "inproc":
+        return Address(transport, target)
+    if transport == "ipc":
+        if target == "*":
+            raise bad("ipc needs an explicit socket path")
+        if len(os.fsencode(target)) > _IPC_PATH_MAX:
+            raise bad(
+                f"the ipc path is {len(os.fsencode(target))} bytes long, the system allows at"
+                f" most {_IPC_PATH_MAX}; choose a shorter path"
+            )
+        return Address(transport, target)
+    if transport == "tcp":
+        host, colon, port = target.rpartition(":")
+        if not colon or not host:
+            raise bad("tcp needs '<host>:<port>'")
+        if not _HOST.match(host):
+            raise bad(f"tcp host {host!r} is not a host name, IPv4 address or [IPv6] address")
+        if host == "*" and not bind:
+            raise bad("tcp host '*' is only allowed when binding; connect to a real host")
+        if port == "*" or port == "0":
+            if not bind:
+                raise bad(f"tcp port {port!r} is only allowed when binding; give the real port")
+            return Address(transport, target)
+        if not port.isdigit() or not 1 <= int(port) <= 65535:
+            raise bad(f"tcp port {port!r} must be an integer in 1..65535")
+        return Address(transport, target)
+    raise bad(f"transport {transport!r} is not supported")
+
+
+def new_inproc_address() -> str:
+    """A fresh ``inproc://fleet-<n>`` address, unique within this process."""
+    return f"inproc://fleet-{next(_inproc_ids)}"
+
+
+def default_context() -> zmq.Context:
+    """The process-wide ZeroMQ context (required to be shared for inproc)."""
+    return zmq.Context.instance()
+
+
+def bind_router(context: zmq.Context, address: str) -> tuple[zmq.Socket, str]:
+    """A ROUTER socket bound to `address`, and the address actually bound (port resolved).
+
+    The socket reports unroutable sends (``ROUTER_MANDATORY``) instead of dropping them, so the
+    exchange notices agents that have gone.
+
+    Raises
+    ------
+    AddressError
+        If the address is malformed or cannot be bound (in use, missing directory, ...).
+    """
+    parsed = parse_address(address, bind=True)
+    sock = context.socket(zmq.ROUTER)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
+    try:
+        sock.bind(str(parsed))
+    except zmq.ZMQError as exc:
+        sock.close(linger=0)
+        raise AddressError(f"cannot bind the bus to {address!r}: {exc.strerror}") from None
+    endpoint = sock.getsockopt(zmq.LAST_ENDPOINT)
+    return sock, endpoint.decode() if isinstance(endpoint, bytes) else str(endpoint)
+
+
+def connect_dealer(context: zmq.Context, address: str) -> zmq.Socket:
+    """A DEALER socket connected to `address` (connecting succeeds before the peer is up,
+    except for inproc, where the ROUTER must already be bound in the same context).
+
+    Raises
+    ------
+    AddressError
+        If the address is malformed or cannot be connected to.
+    """
+    parsed = parse_address(address, bind=False)
+    sock = context.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    try:
+        sock.connect(str(parsed))
+    except zmq.ZMQError as exc:
+        sock.close(linger=0)
+        raise AddressError(f"cannot connect the bus to {address!r}: {exc.strerror}") from None
+    return sock

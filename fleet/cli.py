@@ -1,0 +1,160 @@
+"""The `fleet` command line: run scenarios, list plugins, inspect floor maps."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import warnings
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from fleet.errors import FleetError
+
+__all__ = ["main"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `fleet` console script; returns the exit status."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    console = Console(stderr=False)
+    try:
+        return args.handler(args, console)
+    except FleetError as exc:
+        Console(stderr=True).print(f"[bold red]error:[/] {exc}", highlight=False)
+        return 2
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="fleet", description="Simulate fleets of MAMbots on a shop floor.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a scenario and write its run directory")
+    run.add_argument("scenario", nargs="?", help="scenario TOML (default: scenarios/default.toml)")
+    run.add_argument("--map", help="floor map TOML, overriding the scenario's")
+    run.add_argument("--robots", type=int, help="number of robots")
+    run.add_argument("--controller", help="controller plugin name (see `fleet plugins`)")
+    run.add_argument("--dispatcher", help="dispatcher plugin name (see `fleet plugins`)")
+    run.add_argument("--duration", type=float, help="simulated seconds")
+    run.add_argument("--seed", type=int, help="random seed")
+    run.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<seed>)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar or table")
+    run.set_defaults(handler=_cmd_run)
+
+    plugins = sub.add_parser("plugins", help="list the controller and dispatcher plugins found")
+    plugins.set_defaults(handler=_cmd_plugins)
+
+    floor = sub.add_parser("map", help="compile a floor map and describe its regions")
+    floor.add_argument("file", type=Path)
+    floor.set_defaults(handler=_cmd_map)
+    return p
+
+
+def _cmd_run(args: argparse.Namespace, console: Console) -> int:
+    from fleet.engine import World
+    from fleet.scenario import default_scenario, load_scenario
+
+    scenario = load_scenario(args.scenario) if args.scenario else default_scenario()
+    scenario = scenario.override(
+        map=args.map, robots=args.robots, controller=args.controller,
+        dispatcher=args.dispatcher, duration=args.duration, seed=args.seed,
+    )
+    out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
+    world = World(scenario)
+    if args.quiet:
+        result = world.run()
+    else:
+        console.print(
+            f"[bold]{scenario.name}[/]: {len(world.robots)} robots on {world.floor.name} "
+            f"({len(world.floor.regions)} regions), {scenario.controller.name} + "
+            f"{scenario.dispatcher.name}, {scenario.duration_s:g} s simulated, seed {scenario.seed}"
+        )
+        with Progress(
+            TextColumn("simulating"), BarColumn(), TextColumn("{task.fields[now]:>8.0f} s"),
+            TimeElapsedColumn(), console=console, transient=True,
+        ) as bar:
+            task = bar.add_task("run", total=scenario.duration_s, now=0.0)
+            result = world.run(lambda now: bar.update(task, completed=now, now=now))
+    world.recorder.write(out, result.summary, world.floor, result.safety.examples)
+    if not args.quiet:
+        _kpi_table(console, result.summary)
+        console.print(f"run directory: {out}")
+    return 0
+
+
+def _kpi_table(console: Console, s: dict) -> None:
+    t = Table(title="Key figures", show_header=True, header_style="bold")
+    t.add_column("figure")
+    t.add_column("value", justify="right")
+    jobs = s["jobs"]
+    v = s["violations"]
+    rows = [
+        ("simulated time", f"{s['sim_time_s']:.0f} s"),
+        ("wall time", f"{s['wall_time_s']:.1f} s"),
+        ("robots", str(s["robots"])),
+        ("jobs released / completed", f"{jobs['released']} / {jobs['completed']}"),
+        ("throughput", f"{s['throughput_per_h']:.1f} jobs/h"),
+        ("mean lead time",
+         "-" if s["mean_lead_time_s"] is None else f"{s['mean_lead_time_s']:.1f} s"),
+        ("distance driven", f"{s['distance_m']:.1f} m"),
+        ("violations: obstacle", str(v["obstacle"])),
+        ("violations: zone speed", str(v["speed_zone"])),
+        ("violations: collision", str(v["collision"])),
+        ("digest", s["digest"][:16]),
+    ]
+    for name, value in rows:
+        t.add_row(name, value)
+    console.print(t)
+
+
+def _cmd_plugins(args: argparse.Namespace, console: Console) -> int:
+    from fleet.plugins import discover
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        found = discover()
+    t = Table(title="Plugins", header_style="bold")
+    for col in ("kind", "name", "entry point", "distribution", "status"):
+        t.add_column(col)
+    for info in found:
+        dist = f"{info.distribution or '?'} {info.version or ''}".strip()
+        status = "ok" if info.error is None else f"[red]broken:[/] {info.error}"
+        t.add_row(info.kind, info.name, info.value, dist, status)
+    console.print(t)
+    for w in caught:
+        Console(stderr=True).print(f"[yellow]warning:[/] {w.message}", highlight=False)
+    return 0
+
+
+def _cmd_map(args: argparse.Namespace, console: Console) -> int:
+    from fleet.floor import load_floor
+
+    floor = load_floor(args.file)
+    xmin, ymin, xmax, ymax = floor.bounds
+    console.print(f"[bold]{floor.name}[/] ({floor.source})")
+    console.print(
+        f"{xmax - xmin:g} x {ymax - ymin:g} m, free area {floor.free_space.area:.1f} m2, "
+        f"{len(floor.regions)} convex regions, {floor.graph.number_of_edges()} adjacencies"
+    )
+    t = Table(header_style="bold")
+    for col in ("v_max (m/s)", "regions", "area (m2)"):
+        t.add_column(col, justify="right")
+    by_limit: dict[tuple[float, float], list] = {}
+    for r in floor.regions:
+        by_limit.setdefault(r.v_max, []).append(r)
+    for limit in sorted(by_limit):
+        rs = by_limit[limit]
+        label = f"{limit[0]:g}" if limit[0] == limit[1] else f"{limit[0]:g} x {limit[1]:g}"
+        t.add_row(label, str(len(rs)), f"{sum(r.polygon.area for r in rs):.1f}")
+    console.print(t)
+    console.print("stations: " + ", ".join(f"{s.name} ({s.kind})" for s in floor.spec.stations))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

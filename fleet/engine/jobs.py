@@ -1,0 +1,91 @@
+"""Jobs: where they come from (scripted lists, Poisson arrivals) and what happened to each."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from fleet.errors import ScenarioError
+from fleet.floor import Floor
+from fleet.plugins import Job
+from fleet.scenario import JobsConfig
+
+__all__ = ["JobRecord", "JobSource", "destination_stations"]
+
+
+@dataclass(slots=True)
+class JobRecord:
+    """A job and the times of its life-cycle events (None until they happen)."""
+
+    job: Job
+    robot: str | None = None
+    assigned_s: float | None = None
+    started_s: float | None = None
+    delivered_s: float | None = None
+
+    @property
+    def open(self) -> bool:
+        """Released and not yet assigned."""
+        return self.robot is None
+
+    @property
+    def lead_time_s(self) -> float | None:
+        return None if self.delivered_s is None else self.delivered_s - self.job.released_s
+
+
+def destination_stations(floor: Floor, config: JobsConfig, source: str) -> list[str]:
+    """The stations jobs may go to: the configured ones, else every station that is not a depot."""
+    known = {s.name for s in floor.spec.stations}
+    if config.stations:
+        for i, name in enumerate(config.stations):
+            if name not in known:
+                raise ScenarioError(
+                    source, f"jobs.stations[{i}]", name,
+                    f"no such station on {floor.source} (known: {', '.join(sorted(known))})",
+                )
+        return list(config.stations)
+    names = [s.name for s in floor.spec.stations if s.kind != "depot"]
+    if not names:
+        raise ScenarioError(
+            source, "jobs.stations", [], f"{floor.source} has no non-depot station; list destinations"
+        )
+    return names
+
+
+class JobSource:
+    """Yields ``(release_time_s, Job)`` in time order, drawing randomness only from `rng`."""
+
+    def __init__(self, floor: Floor, config: JobsConfig, rng: np.random.Generator, source: str):
+        self.floor = floor
+        self.config = config
+        self.rng = rng
+        self.source = source
+        self.stations = destination_stations(floor, config, source)
+        for i, item in enumerate(config.scripted):
+            if item.station not in {s.name for s in floor.spec.stations}:
+                raise ScenarioError(
+                    source, f"jobs.scripted[{i}].station", item.station,
+                    f"no such station on {floor.source}",
+                )
+
+    def __iter__(self) -> Iterator[tuple[float, Job]]:
+        if self.config.mode == "scripted":
+            ordered = sorted(enumerate(self.config.scripted), key=lambda p: (p[1].at_s, p[0]))
+            for n, (_, item) in enumerate(ordered, start=1):
+                yield item.at_s, self._job(n, item.station, item.at_s, item.due_s)
+            return
+        mean_gap = 3600.0 / self.config.rate_per_h
+        t = 0.0
+        n = 0
+        while True:
+            t += float(self.rng.exponential(mean_gap))
+            n += 1
+            station = self.stations[int(self.rng.integers(len(self.stations)))]
+            due = None if self.config.due_in_s is None else t + self.config.due_in_s
+            yield t, self._job(n, station, t, due)
+
+    def _job(self, n: int, station: str, t: float, due: float | None) -> Job:
+        s = self.floor.station(station)
+        return Job(id=f"j{n:05d}", station=station, x=s.x, y=s.y, released_s=t, due_s=due)

@@ -1,0 +1,127 @@
+"""The recorder: turns what happened in a run into the run directory.
+
+Output contract (extend it, never break it):
+
+- ``summary.json``: scenario, map, seed, controller, dispatcher, robots, sim_time_s,
+  wall_time_s, jobs {released, completed, ...}, throughput_per_h, mean_lead_time_s, distance_m,
+  violations {obstacle, speed_zone, collision}, per_robot [{id, distance_m, jobs_completed}],
+  digest (sha256 of the trajectories: the same seed gives the same digest).
+- ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
+- ``events.csv``: t, event, job, robot, station (released, assigned, started, delivered).
+- ``violations.csv``: the first violations in full, when there are any.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fleet.floor import Floor
+
+__all__ = ["Event", "Recorder", "Trajectory"]
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    t: float
+    event: str  # released, assigned, started, delivered
+    job: str
+    robot: str = ""
+    station: str = ""
+
+
+@dataclass
+class Trajectory:
+    """One robot's samples, appended tick by tick (lists: cheaper than growing arrays)."""
+
+    t: list[float] = field(default_factory=list)
+    x: list[float] = field(default_factory=list)
+    y: list[float] = field(default_factory=list)
+    vx: list[float] = field(default_factory=list)
+    vy: list[float] = field(default_factory=list)
+
+    def append(self, t: float, x: float, y: float, vx: float, vy: float) -> None:
+        self.t.append(t)
+        self.x.append(x)
+        self.y.append(y)
+        self.vx.append(vx)
+        self.vy.append(vy)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t, xy, v) as float arrays."""
+        return (
+            np.asarray(self.t, dtype=float),
+            np.column_stack([self.x, self.y]).astype(float).reshape(-1, 2),
+            np.column_stack([self.vx, self.vy]).astype(float).reshape(-1, 2),
+        )
+
+    def distance(self) -> float:
+        if len(self.x) < 2:
+            return 0.0
+        return float(np.sum(np.hypot(np.diff(self.x), np.diff(self.y))))
+
+
+class Recorder:
+    """Collects samples and events during a run; writes the run directory afterwards."""
+
+    def __init__(self, robots: list[str]) -> None:
+        self.trajectories: dict[str, Trajectory] = {r: Trajectory() for r in robots}
+        self.events: list[Event] = []
+
+    def sample(self, robot: str, t: float, x: float, y: float, vx: float, vy: float) -> None:
+        self.trajectories[robot].append(t, x, y, vx, vy)
+
+    def event(self, t: float, event: str, job: str, robot: str = "", station: str = "") -> None:
+        self.events.append(Event(t, event, job, robot, station))
+
+    def digest(self) -> str:
+        """sha256 over every robot's exact samples, robots in name order."""
+        h = hashlib.sha256()
+        for robot in sorted(self.trajectories):
+            tr = self.trajectories[robot]
+            h.update(robot.encode())
+            for column in (tr.t, tr.x, tr.y, tr.vx, tr.vy):
+                h.update(np.asarray(column, dtype="<f8").tobytes())
+        return h.hexdigest()
+
+    # -- writing ------------------------------------------------------------------------------
+    def write(self, out_dir: Path, summary: dict[str, Any], floor: Floor, violations: list) -> None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        self._write_trajectories(out_dir / "trajectories.csv", floor)
+        with open(out_dir / "events.csv", "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(["t", "event", "job", "robot", "station"])
+            for e in self.events:
+                w.writerow([f"{e.t:.6f}", e.event, e.job, e.robot, e.station])
+        vpath = out_dir / "violations.csv"
+        if violations:
+            with open(vpath, "w", newline="", encoding="utf-8") as fh:
+                w = csv.writer(fh)
+                w.writerow(["t", "kind", "robot", "x", "y", "detail"])
+                for v in violations:
+                    w.writerow([f"{v.t:.6f}", v.kind, v.robot, f"{v.x:.6f}", f"{v.y:.6f}", v.detail])
+        elif vpath.exists():
+            vpath.unlink()
+
+    def _write_trajectories(self, path: Path, floor: Floor) -> None:
+        speed = np.array([min(r.v_max) for r in floor.regions] + [0.0])
+        with open(path, "w", newline="", encoding="utf-8") as fh:
+            fh.write("t,robot,x,y,vx,vy,region,v_zone\n")
+            for robot in sorted(self.trajectories):
+                t, xy, v = self.trajectories[robot].arrays()
+                if len(t) == 0:
+                    continue
+                region = floor.locate_many(xy)
+                v_zone = speed[region]  # index -1 (outside) picks the trailing 0.0
+                fh.writelines(
+                    f"{t[i]:.3f},{robot},{xy[i, 0]:.6f},{xy[i, 1]:.6f},{v[i, 0]:.6f},"
+                    f"{v[i, 1]:.6f},{region[i]},{v_zone[i]:g}\n"
+                    for i in range(len(t))
+                )

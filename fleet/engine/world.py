@@ -1,0 +1,392 @@
+"""The World: one SimPy environment owning the floor, the robots, the jobs, the clock and the
+single seeded random generator of a run.
+
+Each robot is a SimPy process with its own control period. At a tick it integrates the command
+of the previous tick (the paper's double integrator), records its sample, checks arrival and asks
+the bus for a new command. All robots due at the same instant are served by one bus round: the
+engine builds their observations from one consistent snapshot, the `Exchange` sends them to the
+agents (in this process over ``inproc://`` by default) and the commands come back. Dispatching
+runs in the engine whenever a job is released or a robot falls idle.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import simpy
+
+from fleet.bus import AgentHost, Exchange
+from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.recorder import Recorder
+from fleet.errors import ScenarioError
+from fleet.floor import Floor, load_floor
+from fleet.paths import PathPlanner
+from fleet.plugins import (
+    Command,
+    ControllerContext,
+    ControlStatus,
+    DispatchContext,
+    Neighbour,
+    Observation,
+    RobotSpec,
+    RobotStatus,
+    load_controller,
+    load_dispatcher,
+)
+from fleet.robot import DoubleIntegrator, brake_input
+from fleet.safety import SafetyChecker, SafetyReport
+from fleet.scenario import Scenario
+
+__all__ = ["World", "RobotState", "RunResult"]
+
+log = logging.getLogger("fleet.engine")
+
+#: A robot counts as stopped below this speed (m/s) per axis.
+REST_SPEED = 1e-3
+
+
+@dataclass(slots=True)
+class RobotState:
+    """A robot as the engine knows it (the engine is authoritative over positions)."""
+
+    id: str
+    spec: RobotSpec
+    model: DoubleIntegrator
+    home: tuple[float, float]
+    x: float
+    y: float
+    vx: float = 0.0
+    vy: float = 0.0
+    ax: float = 0.0
+    ay: float = 0.0
+    tick: int = 0
+    job: JobRecord | None = None
+    jobs_completed: int = 0
+
+    @property
+    def goal(self) -> tuple[float, float] | None:
+        if self.job is not None:
+            return (self.job.job.x, self.job.job.y)
+        return None
+
+
+@dataclass
+class RunResult:
+    """What `World.run` returns: the summary (as written to summary.json) and the safety report."""
+
+    summary: dict[str, Any]
+    safety: SafetyReport
+    jobs: list[JobRecord] = field(default_factory=list)
+
+
+class World:
+    """A whole simulated shop floor for one scenario.
+
+    Parameters
+    ----------
+    scenario:
+        The validated scenario.
+    floor:
+        A compiled floor; loaded from ``scenario.map`` when omitted.
+    """
+
+    def __init__(self, scenario: Scenario, floor: Floor | None = None) -> None:
+        self.scenario = scenario
+        self.floor = floor if floor is not None else load_floor(scenario.map)
+        self.rng = np.random.default_rng(scenario.seed)
+        self.env = simpy.Environment()
+        rc = scenario.robots
+        self.spec = RobotSpec(v_max=rc.v_max, a_max=rc.a_max, radius=rc.radius, period=rc.period_s)
+        self.planner = PathPlanner(self.floor, v_max=rc.v_max, a_max=rc.a_max)
+        model = DoubleIntegrator(rc.period_s, rc.a_max)
+        width = max(2, len(str(rc.count)))
+        homes = self._start_positions(rc.count)
+        self.robots: dict[str, RobotState] = {}
+        for i in range(rc.count):
+            rid = f"r{i + 1:0{width}d}"
+            hx, hy = homes[i]
+            self.robots[rid] = RobotState(rid, self.spec, model, (hx, hy), hx, hy)
+        self.recorder = Recorder(list(self.robots))
+        self.jobs: list[JobRecord] = []
+        self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
+        self.dispatcher = load_dispatcher(scenario.dispatcher.name, scenario.dispatcher.options)
+        self.stats: dict[str, int] = defaultdict(int)
+
+        controllers = {}
+        for rid in self.robots:
+            c = load_controller(scenario.controller.name, scenario.controller.options)
+            c.reset(ControllerContext(rid, self.spec, self.floor, self.planner))
+            controllers[rid] = c
+        self.exchange = Exchange(scenario.bus_address)
+        self.host = AgentHost(self.exchange.address, controllers, name="local")
+        self.exchange.add_local(self.host)
+        self.exchange.wait_for_agents(list(self.robots))
+
+        self._pending: list[tuple[RobotState, simpy.Event]] = []
+        self._round = 0
+        self._dispatch_scheduled = False
+        self._idle_since: dict[str, float] = {}
+
+    # -- set-up ---------------------------------------------------------------------------------
+    def _start_positions(self, count: int) -> list[tuple[float, float]]:
+        """Distinct start positions around the start stations (cycled), clear of each other."""
+        names = list(self.scenario.robots.start)
+        stations = self.floor.stations
+        for i, name in enumerate(names):
+            if name not in stations:
+                raise ScenarioError(
+                    self.scenario.source, f"robots.start[{i}]", name,
+                    f"no such station on {self.floor.source} (known: {', '.join(sorted(stations))})",
+                )
+        if not names:
+            names = [s.name for s in self.floor.spec.stations if s.kind == "depot"]
+            names = names or [self.floor.spec.stations[0].name]
+        spacing = 2.0 * self.scenario.robots.radius + 0.2
+        taken: list[tuple[float, float]] = []
+        out = []
+        for i in range(count):
+            s = stations[names[i % len(names)]]
+            out.append(self._free_spot(s.x, s.y, spacing, taken))
+            taken.append(out[-1])
+        return out
+
+    def _free_spot(self, x: float, y: float, spacing: float, taken) -> tuple[float, float]:
+        # Walk outward on a square grid around the station until a free, unoccupied spot is found.
+        for ring in range(0, 50):
+            for dx in range(-ring, ring + 1):
+                for dy in range(-ring, ring + 1):
+                    if max(abs(dx), abs(dy)) != ring:
+                        continue
+                    p = (x + dx * spacing, y + dy * spacing)
+                    if not self.floor.is_free(*p):
+                        continue
+                    if all(math.hypot(p[0] - q[0], p[1] - q[1]) >= spacing - 1e-9 for q in taken):
+                        try:
+                            self.planner.path(p, (x, y))
+                        except Exception:  # unreachable spot (e.g. behind a machine)
+                            continue
+                        return p
+        raise ScenarioError(
+            self.scenario.source, "robots.count", self.scenario.robots.count,
+            f"no free start position left near ({x:g}, {y:g}); use fewer robots or more start stations",
+        )
+
+    # -- processes ------------------------------------------------------------------------------
+    def _release_jobs(self):
+        for t, job in self.job_source:
+            if t > self.scenario.duration_s:
+                return
+            yield self.env.timeout(t - self.env.now)
+            rec = JobRecord(job)
+            self.jobs.append(rec)
+            self.recorder.event(t, "released", job.id, station=job.station)
+            self._request_dispatch()
+
+    def _robot(self, robot: RobotState):
+        env = self.env
+        period = robot.spec.period
+        tol = self.scenario.arrival_tolerance_m
+        while True:
+            if robot.tick > 0:
+                robot.x, robot.y, robot.vx, robot.vy = robot.model.step(
+                    robot.x, robot.y, robot.vx, robot.vy, robot.ax, robot.ay
+                )
+            self.recorder.sample(robot.id, env.now, robot.x, robot.y, robot.vx, robot.vy)
+            if robot.job is not None and _at_rest_near(robot, robot.goal, tol):
+                self._deliver(robot)
+            command = yield self._request(robot)
+            robot.ax, robot.ay = command.ax, command.ay
+            robot.tick += 1
+            yield env.timeout(period)
+
+    def _request(self, robot: RobotState) -> simpy.Event:
+        ev = self.env.event()
+        self._pending.append((robot, ev))
+        if len(self._pending) == 1:
+            # Runs after every robot due at this instant has registered (later event id).
+            self.env.timeout(0).callbacks.append(self._bus_round)
+        return ev
+
+    def _bus_round(self, _event: simpy.Event) -> None:
+        pending, self._pending = self._pending, []
+        pending.sort(key=lambda p: p[0].id)
+        t = self.env.now
+        observations = self._observe([r for r, _ in pending], t)
+        self._round += 1
+        commands = self.exchange.round(self._round, t, observations)
+        for (robot, ev), obs in zip(pending, observations, strict=True):
+            cmd = commands.get(robot.id)
+            if cmd is None:
+                self.stats["commands_missing"] += 1
+                ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
+                cmd = Command(ax, ay, ControlStatus.ERROR)
+            elif cmd.status is not ControlStatus.OK:
+                self.stats[f"commands_{cmd.status.value}"] += 1
+            a = robot.spec.a_max
+            if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
+                self.stats["commands_clipped"] += 1
+            if robot.job is not None and robot.job.started_s is None and obs.goal is not None:
+                robot.job.started_s = t
+                self.recorder.event(t, "started", robot.job.job.id, robot.id, robot.job.job.station)
+            ev.succeed(cmd)
+
+    def _observe(self, robots: list[RobotState], t: float) -> list[Observation]:
+        radius = self.scenario.sensing_radius_m
+        near = self._neighbours(robots, radius) if radius > 0 and len(self.robots) > 1 else {}
+        out = []
+        for r in robots:
+            goal = r.goal
+            if goal is None and self.scenario.robots.return_home:
+                goal = r.home
+            out.append(
+                Observation(
+                    robot=r.id, tick=r.tick, t=t, x=r.x, y=r.y, vx=r.vx, vy=r.vy, goal=goal,
+                    job=None if r.job is None else r.job.job.id,
+                    neighbours=near.get(r.id, ()),
+                )
+            )
+        return out
+
+    def _neighbours(self, robots: list[RobotState], radius: float) -> dict[str, tuple]:
+        cells: dict[tuple[int, int], list[RobotState]] = defaultdict(list)
+        for r in self.robots.values():
+            cells[(int(r.x // radius), int(r.y // radius))].append(r)
+        out = {}
+        r2 = radius * radius
+        for r in robots:
+            cx, cy = int(r.x // radius), int(r.y // radius)
+            found = []
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    for o in cells.get((cx + dx, cy + dy), ()):
+                        if o is not r and (o.x - r.x) ** 2 + (o.y - r.y) ** 2 <= r2:
+                            found.append(Neighbour(o.id, o.x, o.y, o.vx, o.vy))
+            found.sort(key=lambda n: n.robot)
+            out[r.id] = tuple(found)
+        return out
+
+    # -- jobs -----------------------------------------------------------------------------------
+    def _deliver(self, robot: RobotState) -> None:
+        rec = robot.job
+        assert rec is not None
+        rec.delivered_s = self.env.now
+        robot.jobs_completed += 1
+        robot.job = None
+        self.recorder.event(self.env.now, "delivered", rec.job.id, robot.id, rec.job.station)
+        self._request_dispatch()
+
+    def _request_dispatch(self) -> None:
+        if not self._dispatch_scheduled:
+            self._dispatch_scheduled = True
+            self.env.timeout(0).callbacks.append(self._dispatch)
+
+    def _dispatch(self, _event: simpy.Event) -> None:
+        self._dispatch_scheduled = False
+        open_jobs = [rec for rec in self.jobs if rec.open]
+        idle = [r for r in self.robots.values() if r.job is None]
+        if not open_jobs or not idle:
+            return
+        by_id = {rec.job.id: rec for rec in open_jobs}
+        statuses = [RobotStatus(r.id, r.x, r.y, r.vx, r.vy, True, None) for r in idle]
+        context = DispatchContext(self.env.now, self.floor, self.planner)
+        assignments = self.dispatcher.assign([rec.job for rec in open_jobs], statuses, context)
+        taken_jobs: set[str] = set()
+        for a in assignments:
+            rec = by_id.get(a.job)
+            robot = self.robots.get(a.robot)
+            if rec is None or robot is None or robot.job is not None or a.job in taken_jobs:
+                self.stats["assignments_rejected"] += 1
+                log.warning("dispatcher %r made an invalid assignment %s; ignored",
+                            self.scenario.dispatcher.name, a)
+                continue
+            taken_jobs.add(a.job)
+            rec.robot, rec.assigned_s = robot.id, self.env.now
+            robot.job = rec
+            self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
+
+    # -- running --------------------------------------------------------------------------------
+    def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
+        """Simulate `scenario.duration_s` seconds; returns the summary and the safety report."""
+        duration = self.scenario.duration_s
+        wall0 = time.perf_counter()
+        self.env.process(self._release_jobs())
+        for robot in self.robots.values():
+            self.env.process(self._robot(robot))
+        if progress is not None:
+            self.env.process(self._progress(progress, duration))
+        try:
+            self.env.run(until=duration)
+        finally:
+            self.exchange.close()
+            self.host.close()
+        wall = time.perf_counter() - wall0
+        return self._summarise(wall)
+
+    def _progress(self, progress: Callable[[float], None], duration: float):
+        step = max(duration / 200.0, self.spec.period)
+        while True:
+            progress(self.env.now)
+            yield self.env.timeout(step)
+
+    def _summarise(self, wall_time: float) -> RunResult:
+        sc = self.scenario
+        trajectories = {rid: tr.arrays() for rid, tr in self.recorder.trajectories.items()}
+        radii = {rid: r.spec.radius for rid, r in self.robots.items()}
+        safety = SafetyChecker(self.floor).check(trajectories, radii)
+        completed = [rec for rec in self.jobs if rec.delivered_s is not None]
+        lead = [rec.lead_time_s for rec in completed]
+        per_robot = [
+            {
+                "id": rid,
+                "distance_m": round(self.recorder.trajectories[rid].distance(), 6),
+                "jobs_completed": r.jobs_completed,
+            }
+            for rid, r in self.robots.items()
+        ]
+        hours = sc.duration_s / 3600.0
+        summary = {
+            "scenario": sc.name,
+            "scenario_file": sc.source,
+            "map": str(self.floor.source),
+            "seed": sc.seed,
+            "controller": sc.controller.name,
+            "dispatcher": sc.dispatcher.name,
+            "robots": len(self.robots),
+            "sim_time_s": float(self.env.now),
+            "wall_time_s": round(wall_time, 3),
+            "jobs": {
+                "released": len(self.jobs),
+                "completed": len(completed),
+                "assigned_open": sum(1 for rec in self.jobs if rec.robot and rec.delivered_s is None),
+                "unassigned": sum(1 for rec in self.jobs if rec.open),
+            },
+            "throughput_per_h": round(len(completed) / hours, 6) if hours > 0 else 0.0,
+            "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
+            "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
+            "violations": dict(safety.counts),
+            "per_robot": per_robot,
+            "engine": {
+                "bus_rounds": self._round,
+                "robot_steps": sum(r.tick for r in self.robots.values()),
+                **{k: int(v) for k, v in sorted(self.stats.items())},
+                **{f"bus_{k}": int(v) for k, v in sorted(self.exchange.stats.items())},
+            },
+            "digest": self.recorder.digest(),
+        }
+        return RunResult(summary, safety, list(self.jobs))
+
+
+def _at_rest_near(robot: RobotState, goal: tuple[float, float] | None, tol: float) -> bool:
+    return (
+        goal is not None
+        and abs(robot.vx) <= REST_SPEED
+        and abs(robot.vy) <= REST_SPEED
+        and math.hypot(robot.x - goal[0], robot.y - goal[1]) <= tol
+    )

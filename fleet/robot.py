@@ -1,0 +1,76 @@
+"""The paper's robot model: a discrete-time double integrator with box input bounds.
+
+State ``x = [px, py, vx, vy]``, input ``u = [ax, ay]``, and ``x[k+1] = A x[k] + B u[k]`` with::
+
+    A = [[1, 0, dt, 0],        B = [[0,  0],
+         [0, 1, 0, dt],             [0,  0],
+         [0, 0, 1,  0],             [dt, 0],
+         [0, 0, 0,  1]]             [0, dt]]
+
+so the position moves with the velocity of the current step and the input takes effect on the
+next one. Between samples the robot moves on the straight segment ``p[k] -> p[k+1]`` at constant
+velocity ``v[k]``; the safety checker judges exactly that segment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["DoubleIntegrator", "brake_input", "clip"]
+
+
+def clip(value: float, bound: float) -> float:
+    """`value` limited to [-bound, bound]."""
+    return bound if value > bound else -bound if value < -bound else value
+
+
+def brake_input(vx: float, vy: float, dt: float, a_max: float) -> tuple[float, float]:
+    """The input that slows the robot toward rest as fast as the bound allows.
+
+    Both axes are scaled by one factor, so the robot brakes along its line of travel: braking each
+    axis on its own would stop the faster axis last and bend the path (possibly into an obstacle).
+    """
+    fastest = max(abs(vx), abs(vy))
+    if fastest == 0.0:
+        return 0.0, 0.0
+    scale = min(1.0, a_max * dt / fastest)
+    return -vx / dt * scale, -vy / dt * scale
+
+
+@dataclass(frozen=True)
+class DoubleIntegrator:
+    """The discrete double integrator with period `dt` (s) and per-axis bound `a_max` (m/s^2)."""
+
+    dt: float
+    a_max: float
+
+    def __post_init__(self) -> None:
+        if not self.dt > 0:
+            raise ValueError(f"period dt must be positive, got {self.dt!r}")
+        if not self.a_max > 0:
+            raise ValueError(f"acceleration bound a_max must be positive, got {self.a_max!r}")
+
+    @property
+    def A(self) -> np.ndarray:
+        dt = self.dt
+        return np.array(
+            [[1.0, 0.0, dt, 0.0], [0.0, 1.0, 0.0, dt], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+        )
+
+    @property
+    def B(self) -> np.ndarray:
+        dt = self.dt
+        return np.array([[0.0, 0.0], [0.0, 0.0], [dt, 0.0], [0.0, dt]])
+
+    def step(
+        self, x: float, y: float, vx: float, vy: float, ax: float, ay: float
+    ) -> tuple[float, float, float, float]:
+        """One step from (x, y, vx, vy) under input (ax, ay), clipped to the input bound.
+
+        Written on plain floats: the engine calls it once per robot per tick.
+        """
+        dt, a = self.dt, self.a_max
+        ax, ay = clip(ax, a), clip(ay, a)
+        return x + dt * vx, y + dt * vy, vx + dt * ax, vy + dt * ay

@@ -1,0 +1,234 @@
+"""The safety checker: judges a simulated trajectory against the floor, never trusting a controller.
+
+Semantics (the same everywhere in the project): between samples k and k+1 a robot moves on the
+straight segment ``p[k] -> p[k+1]`` at the recorded velocity ``v[k]``.
+
+- **obstacle**: the segment (or, for a robot at rest, the point) leaves the free space, i.e. the
+  configuration space of the floor, by more than `tol` metres of length.
+- **speed_zone**: ``|v[k].x|`` or ``|v[k].y|`` exceeds the per-axis limit of some region that the
+  segment overlaps with positive length (a step that straddles a boundary into a slower zone
+  must already be slow; touching a boundary at one point does not count).
+- **collision**: two robots sampled at the same time closer than the sum of their radii; one
+  violation per pair and contact episode.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from fleet.floor import Floor
+
+__all__ = ["Violation", "SafetyReport", "check_steps", "check_collisions", "SafetyChecker"]
+
+#: Length (m) of leaving the free space below which rounding is forgiven.
+LENGTH_TOL = 1e-6
+#: Speed (m/s) above a limit below which rounding is forgiven.
+SPEED_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class Violation:
+    """One broken rule at one step."""
+
+    kind: str  # "obstacle", "speed_zone" or "collision"
+    robot: str
+    t: float
+    x: float
+    y: float
+    detail: str
+
+
+@dataclass
+class SafetyReport:
+    """Counts per kind plus the first violations in full (for the run directory)."""
+
+    counts: dict[str, int] = field(
+        default_factory=lambda: {"obstacle": 0, "speed_zone": 0, "collision": 0}
+    )
+    examples: list[Violation] = field(default_factory=list)
+    max_examples: int = 100
+
+    def add(self, violations: Sequence[Violation]) -> None:
+        for v in violations:
+            self.counts[v.kind] = self.counts.get(v.kind, 0) + 1
+            if len(self.examples) < self.max_examples:
+                self.examples.append(v)
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+def check_steps(
+    floor: Floor,
+    t: np.ndarray,
+    xy: np.ndarray,
+    v: np.ndarray,
+    robot: str = "",
+) -> list[Violation]:
+    """Obstacle and zone-speed violations of one robot's trajectory.
+
+    Parameters
+    ----------
+    t, xy, v:
+        Sample times (n,), positions (n, 2) and velocities (n, 2); step k runs from sample k to
+        sample k+1 at velocity v[k]. The last sample is checked as a point.
+    """
+    t = np.asarray(t, dtype=float)
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    v = np.asarray(v, dtype=float).reshape(-1, 2)
+    n = len(xy)
+    if n == 0:
+        return []
+    out: list[Violation] = []
+    start = xy[:-1]
+    end = xy[1:]
+    moving = np.any(start != end, axis=1)
+
+    # Points: every sample must be in the free space (catches a robot parked in an obstacle).
+    pts = shapely.points(xy)
+    inside = shapely.dwithin(floor.free_space, pts, LENGTH_TOL)
+    for k in np.flatnonzero(~inside):
+        out.append(_v("obstacle", robot, t, xy, k, "position outside the free space"))
+
+    # Segments: covered by the free space (grown by the tolerance, so a step running along an
+    # obstacle's face a rounding error inside it passes), else measure how much lies outside.
+    seg_idx = np.flatnonzero(moving)
+    if len(seg_idx):
+        lines = shapely.linestrings(np.stack([start[seg_idx], end[seg_idx]], axis=1))
+        covered = shapely.covers(floor.free_space_tolerant, lines)
+        for j in np.flatnonzero(~covered):
+            outside = shapely.difference(lines[j], floor.free_space).length
+            k = int(seg_idx[j])
+            if outside > LENGTH_TOL and inside[k] and inside[k + 1]:
+                out.append(
+                    _v("obstacle", robot, t, xy, k, f"step crosses an obstacle for {outside:.3g} m")
+                )
+        out.extend(_speed_violations(floor, t, xy, v, seg_idx, lines, robot))
+    return sorted(out, key=lambda e: (e.t, e.kind))
+
+
+def _speed_violations(floor, t, xy, v, seg_idx, lines, robot) -> list[Violation]:
+    regions = floor.regions
+    polys = np.array([r.polygon for r in regions], dtype=object)
+    vmax = np.array([r.v_max for r in regions], dtype=float)
+    line_i, reg_i = floor.tree.query(lines, predicate="intersects")
+    if len(line_i) == 0:
+        return []
+    overlap = shapely.length(shapely.intersection(lines[line_i], polys[reg_i])) > LENGTH_TOL
+    line_i, reg_i = line_i[overlap], reg_i[overlap]
+    limit = np.full((len(lines), 2), np.inf)
+    np.minimum.at(limit, line_i, vmax[reg_i])
+    speed = np.abs(v[seg_idx])
+    bad = np.flatnonzero(np.any(speed > limit + SPEED_TOL, axis=1))
+    out = []
+    for j in bad:
+        k = int(seg_idx[j])
+        out.append(
+            _v(
+                "speed_zone",
+                robot,
+                t,
+                xy,
+                k,
+                f"|v| = ({speed[j, 0]:.4g}, {speed[j, 1]:.4g}) m/s over limit "
+                f"({limit[j, 0]:.4g}, {limit[j, 1]:.4g}) m/s",
+            )
+        )
+    return out
+
+
+def check_collisions(
+    t: np.ndarray, robot_index: np.ndarray, xy: np.ndarray, radii: Sequence[float],
+    names: Sequence[str],
+) -> list[Violation]:
+    """Pairs of robots closer than the sum of their radii at a common sample time.
+
+    Rows (t, robot_index, xy) may come in any order. One violation per pair and episode: a pair
+    that stays in contact over consecutive common samples counts once.
+    """
+    t = np.asarray(t, dtype=float)
+    robot_index = np.asarray(robot_index, dtype=np.int64)
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    if len(t) == 0:
+        return []
+    radii_arr = np.asarray(radii, dtype=float)
+    reach = 2.0 * float(radii_arr.max())
+    order = np.lexsort((robot_index, t))
+    t, robot_index, xy = t[order], robot_index[order], xy[order]
+    bounds = np.flatnonzero(np.diff(t)) + 1
+    last_contact: dict[tuple[int, int], int] = {}
+    out: list[Violation] = []
+    for step, (a, b) in enumerate(zip(np.r_[0, bounds], np.r_[bounds, len(t)], strict=True)):
+        if b - a < 2:
+            continue
+        p = xy[a:b]
+        ids = robot_index[a:b]
+        # Sort by x and compare only within reach: near-linear for spread-out fleets.
+        sx = np.argsort(p[:, 0], kind="stable")
+        ps, idx = p[sx], ids[sx]
+        for i in range(len(ps) - 1):
+            j_end = np.searchsorted(ps[:, 0], ps[i, 0] + reach, side="right")
+            if j_end <= i + 1:
+                continue
+            d = np.hypot(ps[i + 1 : j_end, 0] - ps[i, 0], ps[i + 1 : j_end, 1] - ps[i, 1])
+            for off in np.flatnonzero(d < radii_arr[idx[i]] + radii_arr[idx[i + 1 : j_end]] - 1e-9):
+                r1, r2 = sorted((int(idx[i]), int(idx[i + 1 + off])))
+                key = (r1, r2)
+                if last_contact.get(key) != step - 1:
+                    out.append(
+                        Violation(
+                            "collision",
+                            names[r1],
+                            float(t[a]),
+                            float(ps[i, 0]),
+                            float(ps[i, 1]),
+                            f"{names[r1]} and {names[r2]} {d[off]:.3f} m apart",
+                        )
+                    )
+                last_contact[key] = step
+    return out
+
+
+class SafetyChecker:
+    """Checks whole runs: per-robot steps against the floor, then robot pairs."""
+
+    def __init__(self, floor: Floor) -> None:
+        self.floor = floor
+
+    def check(
+        self,
+        trajectories: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+        radii: Mapping[str, float],
+    ) -> SafetyReport:
+        """`trajectories[robot] = (t, xy, v)`; returns counts and the first violations."""
+        report = SafetyReport()
+        names = sorted(trajectories)
+        for name in names:
+            t, xy, v = trajectories[name]
+            report.add(check_steps(self.floor, t, xy, v, name))
+        if len(names) > 1:
+            ts, idx, pts = [], [], []
+            for i, name in enumerate(names):
+                t, xy, _ = trajectories[name]
+                ts.append(t)
+                idx.append(np.full(len(t), i))
+                pts.append(xy)
+            report.add(
+                check_collisions(
+                    np.concatenate(ts),
+                    np.concatenate(idx),
+                    np.concatenate(pts),
+                    [radii[n] for n in names],
+                    names,
+                )
+            )
+        return report
+
+
+def _v(kind: str, robot: str, t: np.ndarray, xy: np.ndarray, k: int, detail: str) -> Violation:
+    return Violation(kind, robot, float(t[k]), float(xy[k, 0]), float(xy[k, 1]), detail)

@@ -1,0 +1,281 @@
+"""Scenario files: which floor, which fleet, which plugins, which jobs, for how long.
+
+A scenario is a TOML file (see ``scenarios/default.toml``); every key is optional except that a
+map must be known. Unknown keys and bad values raise `ScenarioError` naming the file, the field
+and the value. Command-line options override the file through `Scenario.override`.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from fleet.errors import ScenarioError
+
+__all__ = [
+    "RobotsConfig",
+    "PluginChoice",
+    "ScriptedJob",
+    "JobsConfig",
+    "Scenario",
+    "load_scenario",
+    "default_scenario",
+    "REPO_ROOT",
+]
+
+#: The source checkout (maps/ and scenarios/ live here in a development install).
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class RobotsConfig:
+    """The fleet: how many robots, where they start, and their physical limits."""
+
+    count: int = 4
+    start: tuple[str, ...] = ()  # station names, cycled; empty -> the floor's depots
+    v_max: float = 1.0
+    a_max: float = 0.5
+    radius: float = 0.4
+    period_s: float = 0.25
+    return_home: bool = True  # idle robots drive back to their start position
+
+
+@dataclass(frozen=True)
+class PluginChoice:
+    """A plugin by entry-point name plus the keyword options for its constructor."""
+
+    name: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ScriptedJob:
+    at_s: float
+    station: str
+    due_s: float | None = None
+
+
+@dataclass(frozen=True)
+class JobsConfig:
+    """Where jobs come from: Poisson arrivals or a scripted list of "go to station X"."""
+
+    mode: str = "poisson"  # "poisson" or "scripted"
+    rate_per_h: float = 60.0
+    stations: tuple[str, ...] = ()  # destinations; empty -> every station that is not a depot
+    due_in_s: float | None = None  # due time relative to release, for Poisson jobs
+    scripted: tuple[ScriptedJob, ...] = ()
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A whole run description, validated."""
+
+    name: str
+    source: str
+    map: Path
+    duration_s: float = 600.0
+    seed: int = 1
+    robots: RobotsConfig = field(default_factory=RobotsConfig)
+    controller: PluginChoice = field(default_factory=lambda: PluginChoice("follower"))
+    dispatcher: PluginChoice = field(default_factory=lambda: PluginChoice("greedy"))
+    jobs: JobsConfig = field(default_factory=JobsConfig)
+    bus_address: str | None = None  # None -> a private inproc:// address
+    arrival_tolerance_m: float = 0.05
+    sensing_radius_m: float = 5.0
+
+    def override(
+        self,
+        *,
+        map: str | Path | None = None,
+        robots: int | None = None,
+        controller: str | None = None,
+        dispatcher: str | None = None,
+        duration: float | None = None,
+        seed: int | None = None,
+    ) -> Scenario:
+        """A copy with command-line overrides applied and validated."""
+        src = "command line"
+        out = self
+        if map is not None:
+            path = Path(map)
+            if not path.is_file():
+                raise ScenarioError(src, "--map", str(map), "no such map file")
+            out = replace(out, map=path.resolve())
+        if robots is not None:
+            out = replace(out, robots=replace(out.robots, count=_positive_int(src, "--robots", robots)))
+        if controller is not None:
+            out = replace(out, controller=PluginChoice(controller))
+        if dispatcher is not None:
+            out = replace(out, dispatcher=PluginChoice(dispatcher))
+        if duration is not None:
+            out = replace(out, duration_s=_positive(src, "--duration", duration))
+        if seed is not None:
+            out = replace(out, seed=_seed(src, "--seed", seed))
+        return out
+
+
+def default_scenario() -> Scenario:
+    """The scenario `fleet run` uses without a file: ``scenarios/default.toml``."""
+    return load_scenario(REPO_ROOT / "scenarios" / "default.toml")
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file; relative paths in it are relative to the file."""
+    path = Path(path)
+    src = str(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ScenarioError(src, "(file)", src, "no such scenario file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
+    root = _Table(src, "", raw)
+    sc = root.table("scenario")
+    name = sc.take("name", str, path.stem)
+    map_value = sc.take("map", str, required=True)
+    map_path = (path.parent / map_value).resolve()
+    if not map_path.is_file():
+        raise ScenarioError(src, "scenario.map", map_value, f"no such map file ({map_path})")
+    duration = _positive(src, "scenario.duration_s", sc.take("duration_s", (int, float), 600.0))
+    seed = _seed(src, "scenario.seed", sc.take("seed", int, 1))
+    tol = _positive(src, "scenario.arrival_tolerance_m", sc.take("arrival_tolerance_m", (int, float), 0.05))
+    sensing = _non_negative(src, "scenario.sensing_radius_m", sc.take("sensing_radius_m", (int, float), 5.0))
+    sc.finish()
+
+    rb = root.table("robots")
+    robots = RobotsConfig(
+        count=_positive_int(src, "robots.count", rb.take("count", int, 4)),
+        start=tuple(rb.take_list("start", str, ())),
+        v_max=_positive(src, "robots.v_max", rb.take("v_max", (int, float), 1.0)),
+        a_max=_positive(src, "robots.a_max", rb.take("a_max", (int, float), 0.5)),
+        radius=_positive(src, "robots.radius", rb.take("radius", (int, float), 0.4)),
+        period_s=_positive(src, "robots.period_s", rb.take("period_s", (int, float), 0.25)),
+        return_home=rb.take("return_home", bool, True),
+    )
+    rb.finish()
+
+    controller = _plugin(root, "controller", "follower")
+    dispatcher = _plugin(root, "dispatcher", "greedy")
+
+    jb = root.table("jobs")
+    mode = jb.take("mode", str, "poisson")
+    if mode not in ("poisson", "scripted"):
+        raise ScenarioError(src, "jobs.mode", mode, "must be 'poisson' or 'scripted'")
+    rate = _positive(src, "jobs.rate_per_h", jb.take("rate_per_h", (int, float), 60.0))
+    stations = tuple(jb.take_list("stations", str, ()))
+    due_in = jb.take("due_in_s", (int, float), None)
+    if due_in is not None:
+        _positive(src, "jobs.due_in_s", due_in)
+    scripted = []
+    for i, item in enumerate(jb.take_list("scripted", dict, ())):
+        t = _Table(src, f"jobs.scripted[{i}].", item)
+        at = _non_negative(src, f"jobs.scripted[{i}].at_s", t.take("at_s", (int, float), required=True))
+        station = t.take("station", str, required=True)
+        due = t.take("due_s", (int, float), None)
+        t.finish()
+        scripted.append(ScriptedJob(float(at), station, None if due is None else float(due)))
+    if mode == "scripted" and not scripted:
+        raise ScenarioError(src, "jobs.scripted", [], "mode 'scripted' needs at least one job")
+    jb.finish()
+    jobs = JobsConfig(mode, float(rate), stations, None if due_in is None else float(due_in), tuple(scripted))
+
+    bus = root.table("bus")
+    address = bus.take("address", str, None)
+    if address is not None and not address.startswith(("inproc://", "ipc://", "tcp://")):
+        raise ScenarioError(src, "bus.address", address, "must start with inproc://, ipc:// or tcp://")
+    bus.finish()
+    root.finish()
+    return Scenario(
+        name=name,
+        source=src,
+        map=map_path,
+        duration_s=float(duration),
+        seed=seed,
+        robots=robots,
+        controller=controller,
+        dispatcher=dispatcher,
+        jobs=jobs,
+        bus_address=address,
+        arrival_tolerance_m=float(tol),
+        sensing_radius_m=float(sensing),
+    )
+
+
+def _plugin(root: _Table, key: str, default: str) -> PluginChoice:
+    t = root.table(key)
+    name = t.take("name", str, default)
+    options = t.take("options", dict, {})
+    t.finish()
+    return PluginChoice(name, dict(options))
+
+
+class _Table:
+    """Reads one TOML table strictly: typed fields, and no key left unread."""
+
+    def __init__(self, source: str, prefix: str, data: Any) -> None:
+        if not isinstance(data, dict):
+            raise ScenarioError(source, prefix.rstrip(".") or "(top level)", data, "must be a table")
+        self.source, self.prefix, self.data, self.seen = source, prefix, data, set()
+
+    def table(self, key: str) -> _Table:
+        self.seen.add(key)
+        return _Table(self.source, f"{self.prefix}{key}.", self.data.get(key, {}))
+
+    def take(self, key: str, kind: Any, default: Any = None, *, required: bool = False) -> Any:
+        self.seen.add(key)
+        if key not in self.data:
+            if required:
+                raise ScenarioError(self.source, self.prefix + key, None, "is required")
+            return default
+        value = self.data[key]
+        kinds = kind if isinstance(kind, tuple) else (kind,)
+        # bool is an int in Python; never accept true/false for a number.
+        if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+            names = " or ".join(k.__name__ for k in kinds)
+            raise ScenarioError(self.source, self.prefix + key, value, f"must be of type {names}")
+        return value
+
+    def take_list(self, key: str, kind: Any, default: Any) -> Any:
+        value = self.take(key, list, default)
+        for i, item in enumerate(value):
+            if not isinstance(item, kind):
+                raise ScenarioError(
+                    self.source, f"{self.prefix}{key}[{i}]", item, f"must be of type {kind.__name__}"
+                )
+        return value
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self.seen)
+        if unknown:
+            allowed = ", ".join(sorted(self.seen))
+            raise ScenarioError(
+                self.source, self.prefix + unknown[0], self.data[unknown[0]],
+                f"unknown key (allowed here: {allowed})",
+            )
+
+
+def _positive(src: str, fld: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+        raise ScenarioError(src, fld, value, "must be a positive number")
+    return float(value)
+
+
+def _non_negative(src: str, fld: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+        raise ScenarioError(src, fld, value, "must be a number >= 0")
+    return float(value)
+
+
+def _positive_int(src: str, fld: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ScenarioError(src, fld, value, "must be a positive whole number")
+    return value
+
+
+def _seed(src: str, fld: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ScenarioError(src, fld, value, "must be a whole number >= 0")
+    return value

@@ -1,0 +1,59 @@
+"""Engine throughput: robot-steps per second with the baseline follower, in one process.
+
+Runs the shop floor with 10, 100 and 1000 robots (greedy dispatcher, Poisson jobs scaled with
+the fleet) and prints, per fleet size, the set-up time (World construction: map, plugins, bus),
+the run's wall time and robot-steps per wall second (median of --repeats runs). Nothing here is
+asserted: the figures go in notes and the README.
+
+    python scripts/bench_engine.py [--sizes 10 100 1000] [--steps 100000] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from dataclasses import replace
+
+from fleet.engine import World
+from fleet.floor import load_floor
+from fleet.scenario import REPO_ROOT, load_scenario
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[10, 100, 1000])
+    ap.add_argument("--steps", type=int, default=100_000, help="robot-steps per run (about)")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+
+    base = load_scenario(REPO_ROOT / "scenarios" / "default.toml")
+    floor = load_floor(base.map)
+    print(f"map {floor.name}: {len(floor.regions)} regions; controller follower, dispatcher greedy")
+    print(f"{'robots':>7} {'sim s':>7} {'steps':>9} {'setup s':>8} {'run s':>8} {'steps/s':>10}")
+    for n in args.sizes:
+        duration = max(10.0, args.steps * base.robots.period_s / n)
+        sc = replace(
+            base.override(robots=n, duration=duration),
+            # Keep robots busy: about one job per robot every two minutes.
+            jobs=replace(base.jobs, rate_per_h=30.0 * n),
+        )
+        setups, runs, rates = [], [], []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            world = World(sc, floor)
+            t1 = time.perf_counter()
+            result = world.run()
+            t2 = time.perf_counter()
+            steps = result.summary["engine"]["robot_steps"]
+            setups.append(t1 - t0)
+            runs.append(t2 - t1)
+            rates.append(steps / (t2 - t1))
+        print(
+            f"{n:>7} {duration:>7.0f} {steps:>9} {statistics.median(setups):>8.2f} "
+            f"{statistics.median(runs):>8.2f} {statistics.median(rates):>10.0f}"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,394 @@
+"""Plugin discovery through entry points, and the conformance kit failing plugins that cheat."""
+
+from __future__ import annotations
+
+import math
+import sys
+import textwrap
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fleet_plugins.follower import PathFollower
+from fleet_plugins.greedy import GreedyDispatcher
+
+import fleet.plugins as plugins_module
+from fleet.errors import PluginError
+from fleet.plugins import (
+    CONTROLLER_GROUP,
+    DISPATCHER_GROUP,
+    Assignment,
+    Command,
+    Controller,
+    ControlStatus,
+    Dispatcher,
+    PluginInfo,
+    PluginWarning,
+    discover,
+    load_controller,
+    load_dispatcher,
+)
+from fleet.testing import ConformanceError, check_controller, check_dispatcher
+
+
+@pytest.fixture(autouse=True)
+def _fresh_discovery(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test reads the entry points itself; the process cache is restored afterwards."""
+    monkeypatch.setattr(plugins_module, "_CACHE", None)
+
+
+# --- a third party installed in tmp_path --------------------------------------------------------
+
+THIRD_PARTY = '''
+from fleet.plugins import Command, ControlStatus, Controller, Dispatcher
+
+
+class GoodController(Controller):
+    """Holds still: enough to be loadable."""
+
+    def __init__(self, level: int = 1) -> None:
+        super().__init__()
+        self.level = level
+
+    def compute(self, obs):
+        return Command(0.0, 0.0, ControlStatus.IDLE)
+
+
+class NotAController:
+    def compute(self, obs):
+        return None
+
+
+class HalfController(Controller):
+    """Forgot to implement compute."""
+
+
+class GoodDispatcher(Dispatcher):
+    def assign(self, jobs, robots, context):
+        return []
+'''
+
+
+def install(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, entry_points: str) -> str:
+    """Install a distribution ``acme-fleet`` into tmp_path (appended to sys.path).
+
+    Returns the name of its module, unique per test so no import from an earlier test is reused.
+    """
+    module = f"acme_{tmp_path.name.replace('-', '_')}"
+    (tmp_path / f"{module}.py").write_text(THIRD_PARTY)
+    info = tmp_path / "acme_fleet-2.3.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-fleet\nVersion: 2.3\n")
+    (info / "entry_points.txt").write_text(textwrap.dedent(entry_points).replace("MODULE", module))
+    # Appended, not prepended: the built-ins stay first on sys.path, as an installed
+    # third party would be found after the project in a typical environment.
+    monkeypatch.setattr(sys, "path", [*sys.path, str(tmp_path)])
+    monkeypatch.delitem(sys.modules, module, raising=False)
+    return module
+
+
+ENTRY_POINTS = f"""
+[{CONTROLLER_GROUP}]
+acme = MODULE:GoodController
+ghost = acme_no_such_module:Ghost
+impostor = MODULE:NotAController
+half = MODULE:HalfController
+follower = MODULE:GoodController
+
+[{DISPATCHER_GROUP}]
+acme_dispatch = MODULE:GoodDispatcher
+"""
+
+
+def by_name(infos: list[PluginInfo]) -> dict[str, list[PluginInfo]]:
+    out: dict[str, list[PluginInfo]] = {}
+    for info in infos:
+        out.setdefault(info.name, []).append(info)
+    return out
+
+
+# --- discovery ------------------------------------------------------------------------------------
+
+
+def test_builtins_are_discovered_from_the_project_distribution() -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PluginWarning)  # the built-ins must not warn
+        found = {(i.kind, i.name): i for i in discover()}
+    follower = found[("controller", "follower")]
+    greedy = found[("dispatcher", "greedy")]
+    assert follower.factory is PathFollower and follower.error is None and follower.ok
+    assert greedy.factory is GreedyDispatcher and greedy.error is None
+    assert follower.group == CONTROLLER_GROUP and greedy.group == DISPATCHER_GROUP
+    assert follower.value == "fleet_plugins.follower:PathFollower"
+    assert follower.distribution == greedy.distribution == "mambot-fleet"
+    assert follower.version == "0.1.0"
+    assert follower.origin is not None and Path(follower.origin).parent.name == "follower"
+
+
+def test_discover_sorts_by_kind_then_name_and_filters_by_kind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    install(tmp_path, monkeypatch, ENTRY_POINTS)
+    with pytest.warns(PluginWarning):
+        everything = discover(refresh=True)
+    keys = [(i.kind, i.name) for i in everything]
+    assert keys == sorted(keys)
+    assert {i.kind for i in discover("controller")} == {"controller"}
+    assert {i.kind for i in discover("dispatcher")} == {"dispatcher"}
+    with pytest.raises(ValueError, match="'robot'.*controller, dispatcher"):
+        discover("robot")
+
+
+def test_discovery_is_cached_until_refreshed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    before = [i.name for i in discover("dispatcher")]
+    install(tmp_path, monkeypatch, f"[{DISPATCHER_GROUP}]\nacme_dispatch = MODULE:GoodDispatcher\n")
+    assert [i.name for i in discover("dispatcher")] == before  # still the cached answer
+    names = [i.name for i in discover("dispatcher", refresh=True)]
+    assert "acme_dispatch" in names and "acme_dispatch" not in before
+
+
+def test_broken_plugins_are_skipped_with_a_warning_and_listed_with_their_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    module = install(tmp_path, monkeypatch, ENTRY_POINTS)
+    with pytest.warns(PluginWarning) as caught:
+        found = by_name(discover(refresh=True))
+    messages = [str(w.message) for w in caught]
+
+    ghost = found["ghost"][0]
+    assert ghost.factory is None and not ghost.ok
+    assert "acme_no_such_module" in ghost.error and "ModuleNotFoundError" in ghost.error
+    assert ghost.distribution == "acme-fleet" and ghost.version == "2.3"
+    impostor = found["impostor"][0]
+    assert impostor.factory is None
+    assert "not a subclass of fleet.plugins.Controller" in impostor.error
+    assert impostor.origin == str(tmp_path / f"{module}.py")
+    half = found["half"][0]
+    assert half.factory is None and "abstract method(s) compute" in half.error
+
+    # One warning per broken plugin, naming it, its entry point and the problem.
+    for name, problem in [
+        ("ghost", "acme_no_such_module"),
+        ("impostor", "not a subclass"),
+        ("half", "compute"),
+    ]:
+        hits = [m for m in messages if f"'{name}'" in m]
+        assert len(hits) == 1, messages
+        assert CONTROLLER_GROUP in hits[0] and "acme-fleet" in hits[0] and problem in hits[0]
+
+    # The broken ones never stop the good ones loading.
+    assert found["acme"][0].ok and found["acme_dispatch"][0].ok
+
+
+def test_a_duplicate_name_keeps_the_first_plugin_and_warns_about_the_other(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    install(tmp_path, monkeypatch, ENTRY_POINTS)
+    with pytest.warns(PluginWarning) as caught:
+        found = by_name(discover(refresh=True))
+    (message,) = [str(w.message) for w in caught if "'follower'" in str(w.message)]
+    assert "acme-fleet" in message and "already taken" in message and "mambot-fleet" in message
+    winner, shadowed = found["follower"]
+    assert winner.factory is PathFollower and winner.distribution == "mambot-fleet"
+    assert shadowed.factory is None and shadowed.distribution == "acme-fleet"
+    assert isinstance(load_controller("follower"), PathFollower)
+
+
+def test_a_third_party_plugin_is_found_and_loadable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    module = install(tmp_path, monkeypatch, ENTRY_POINTS)
+    with pytest.warns(PluginWarning):
+        discover(refresh=True)
+    controller = load_controller("acme", {"level": 3})
+    assert type(controller).__module__ == module and controller.level == 3
+    dispatcher = load_dispatcher("acme_dispatch")
+    assert isinstance(dispatcher, Dispatcher) and type(dispatcher).__name__ == "GoodDispatcher"
+
+
+def test_loading_a_broken_plugin_says_why(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    install(tmp_path, monkeypatch, ENTRY_POINTS)
+    with pytest.warns(PluginWarning):
+        discover(refresh=True)
+    with pytest.raises(PluginError, match=r"'ghost'.*cannot be used.*acme_no_such_module"):
+        load_controller("ghost")
+    with pytest.raises(PluginError, match=r"'impostor'.*not a subclass"):
+        load_controller("impostor")
+
+
+def test_unknown_names_list_the_available_plugins() -> None:
+    with pytest.raises(
+        PluginError, match=r"no controller plugin named 'mpc2'.*available: .*follower"
+    ):
+        load_controller("mpc2")
+    with pytest.raises(PluginError, match=r"fleet.dispatchers.*available: .*greedy"):
+        load_dispatcher("follower")  # a controller's name is not a dispatcher
+
+
+def test_options_reach_the_constructor_and_bad_ones_name_plugin_and_option() -> None:
+    assert load_controller("follower", {"gain": 0.25}).gain == 0.25
+    assert load_dispatcher("greedy", {"metric": "travel_time"}).metric == "travel_time"
+    with pytest.raises(PluginError, match=r"'follower'.*'gian'") as err:
+        load_controller("follower", {"gian": 0.25})
+    assert isinstance(err.value.__cause__, TypeError)
+    with pytest.raises(PluginError, match=r"'greedy'.*metric = 'manhattan'.*'euclidean'"):
+        load_dispatcher("greedy", {"metric": "manhattan"})
+
+
+# --- the conformance kit fails plugins that break their contract ----------------------------------
+
+
+class Reckless(PathFollower):
+    """Follows the path but accelerates 20 % harder than the robot can."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        cmd = super().compute(obs)
+        return replace(cmd, ax=cmd.ax * 1.2, ay=cmd.ay * 1.2)
+
+
+class Stubborn(PathFollower):
+    """Ignores the goal: always brakes."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        return super().compute(replace(obs, goal=None))
+
+
+class Beeline(Controller):
+    """Drives straight at the goal (PD, per-axis speed 0.9): right through the press."""
+
+    def reset(self, context):  # type: ignore[no-untyped-def]
+        self.context = context
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        dt, a = self.context.spec.period, self.context.spec.a_max
+        v = np.array([obs.vx, obs.vy])
+        if obs.goal is None:
+            target = np.zeros(2)
+            status = ControlStatus.IDLE
+        else:
+            err = np.array(obs.goal) - np.array([obs.x, obs.y])
+            target = np.clip(0.5 * err, -0.9, 0.9)
+            status = ControlStatus.OK
+        u = np.clip((target - v) / dt, -a, a)
+        return Command(float(u[0]), float(u[1]), status)
+
+
+class Chatty(PathFollower):
+    """Says OK instead of IDLE when it has nothing to do."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        return replace(super().compute(obs), status=ControlStatus.OK)
+
+
+class Moody(PathFollower):
+    """Each instance differs a little: not reproducible across processes."""
+
+    created = 0
+
+    def __init__(self) -> None:
+        super().__init__()
+        type(self).created += 1
+        self.nth = type(self).created
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        cmd = super().compute(obs)
+        return replace(cmd, plan=((float(self.nth), obs.x, obs.y),))
+
+
+class Broken(PathFollower):
+    """Returns a NaN acceleration."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        return replace(super().compute(obs), ax=math.nan)
+
+
+@pytest.mark.parametrize(
+    ("factory", "rule", "words"),
+    [
+        (Reckless, "accel-bound", "a_max = 0.5"),
+        (Stubborn, "reach-goal", "towards (18, 7)"),
+        (Beeline, "free-space", "leaves the free space"),
+        (Chatty, "idle", "expected IDLE"),
+        (Moody, "determinism", "fresh one"),
+        (Broken, "command", "ax = nan is not finite"),
+    ],
+)
+def test_check_controller_fails_a_bad_controller_naming_the_rule(
+    factory: type, rule: str, words: str
+) -> None:
+    with pytest.raises(ConformanceError) as err:
+        check_controller(factory)
+    assert err.value.rule == rule
+    message = str(err.value)
+    assert f"rule {rule!r} broken" in message and words in message
+    assert factory.__qualname__ in message
+
+
+def test_check_controller_reports_options_the_plugin_rejects() -> None:
+    with pytest.raises(ConformanceError, match=r"'instantiate'.*gain = 3"):
+        check_controller(PathFollower, options={"gain": 3})
+
+
+class TakesTheFirst(Dispatcher):
+    """Pairs jobs with robots in list order, busy or not."""
+
+    def assign(self, jobs, robots, context):  # type: ignore[no-untyped-def]
+        return [Assignment(j.id, r.robot) for j, r in zip(jobs, robots, strict=False)]
+
+
+class Sorter(GreedyDispatcher):
+    """Sorts the caller's job list in place."""
+
+    def assign(self, jobs, robots, context):  # type: ignore[no-untyped-def]
+        jobs.sort(key=lambda j: j.id)
+        return super().assign(jobs, robots, context)
+
+
+class Doubler(Dispatcher):
+    """Gives every open job to the first idle robot."""
+
+    def assign(self, jobs, robots, context):  # type: ignore[no-untyped-def]
+        idle = [r for r in robots if r.idle]
+        return [Assignment(j.id, idle[0].robot) for j in jobs] if idle else []
+
+
+class Lazy(Dispatcher):
+    """Never assigns anything."""
+
+    def assign(self, jobs, robots, context):  # type: ignore[no-untyped-def]
+        return []
+
+
+class Inventor(GreedyDispatcher):
+    """Adds a job nobody asked for."""
+
+    def assign(self, jobs, robots, context):  # type: ignore[no-untyped-def]
+        idle = [r for r in robots if r.idle]
+        return [Assignment("made-up", idle[0].robot)] if idle and jobs else []
+
+
+@pytest.mark.parametrize(
+    ("factory", "rule", "words"),
+    [
+        (TakesTheFirst, "idle-robots", "is busy with"),
+        (Sorter, "no-mutation", "an input was changed"),
+        (Doubler, "unique", "assigned twice"),
+        (Lazy, "progress", "nothing assigned"),
+        (Inventor, "open-jobs", "'made-up' is not open"),
+    ],
+)
+def test_check_dispatcher_fails_a_bad_dispatcher_naming_the_rule(
+    factory: type, rule: str, words: str
+) -> None:
+    with pytest.raises(ConformanceError) as err:
+        check_dispatcher(factory)
+    assert err.value.rule == rule
+    assert f"rule {rule!r} broken" in str(err.value) and words in str(err.value)
+
+
+def test_conformance_errors_are_assertion_errors_so_pytest_reports_failures() -> None:
+    assert issubclass(ConformanceError, AssertionError)

@@ -1,0 +1,97 @@
+"""The safety checker judges trajectories by the project's step semantics."""
+
+import numpy as np
+import pytest
+from shapely.geometry import box
+
+from fleet.floor import Floor, FloorSpec
+from fleet.robot import DoubleIntegrator, brake_input
+from fleet.safety import SafetyChecker, check_collisions, check_steps
+
+
+@pytest.fixture
+def hall() -> Floor:
+    """10 x 4 m: fast left part, an obstacle 4..6 x 0..2, a 0.4 m/s zone at x >= 7."""
+    spec = FloorSpec("hall.toml", "hall", box(0, 0, 10, 4), (1.0, 1.0))
+    pieces = [
+        (box(0, 0, 4, 4), (1.0, 1.0), None),
+        (box(4, 2, 6, 4), (1.0, 1.0), None),
+        (box(6, 0, 7, 4), (1.0, 1.0), None),
+        (box(7, 0, 10, 4), (0.4, 0.4), "slow"),
+    ]
+    return Floor.from_regions(spec, pieces)
+
+
+def steps(points, dt=1.0):
+    """Samples along `points` with the velocity that moves each step to the next point."""
+    xy = np.asarray(points, dtype=float)
+    v = np.zeros_like(xy)
+    v[:-1] = np.diff(xy, axis=0) / dt
+    return np.arange(len(xy)) * dt, xy, v
+
+
+def test_clean_trajectory_has_no_violations(hall):
+    t, xy, v = steps([(1, 1), (2, 1.5), (3, 2.5), (4, 3), (5, 3), (6, 3), (6.5, 2.5), (6.9, 2.5), (7.2, 2.5)])
+    assert check_steps(hall, t, xy, v, "r1") == []
+
+
+def test_step_through_obstacle_is_counted_even_with_both_ends_free(hall):
+    t, xy, v = steps([(3.5, 1), (6.5, 1)], dt=3.0)
+    found = check_steps(hall, t, xy, v, "r1")
+    assert [f.kind for f in found] == ["obstacle"]
+    assert "crosses an obstacle for 2 m" in found[0].detail
+
+
+def test_position_inside_obstacle_is_counted(hall):
+    t, xy, v = steps([(5, 1), (5, 1)])
+    kinds = [f.kind for f in check_steps(hall, t, xy, v, "r1")]
+    assert kinds == ["obstacle", "obstacle"]
+
+
+def test_straddling_into_a_slow_zone_too_fast_is_a_speed_violation(hall):
+    # Ends inside the slow zone at 0.8 m/s: the part of the step inside it was too fast.
+    t, xy, v = steps([(6.5, 3), (7.3, 3)])
+    found = check_steps(hall, t, xy, v, "r1")
+    assert [f.kind for f in found] == ["speed_zone"]
+    assert "over limit (0.4, 0.4)" in found[0].detail
+
+
+def test_touching_the_slow_zone_boundary_is_allowed(hall):
+    t, xy, v = steps([(6.2, 3), (7.0, 3), (7.4, 3)])
+    assert check_steps(hall, t, xy, v, "r1") == []
+
+
+def test_per_axis_limit(hall):
+    # 0.39 m/s on each axis (0.55 m/s overall) is within a per-axis 0.4 m/s box.
+    t, xy, v = steps([(8, 1), (8.39, 1.39)])
+    assert check_steps(hall, t, xy, v, "r1") == []
+    t, xy, v = steps([(8, 1), (8.41, 1.0)])
+    assert [f.kind for f in check_steps(hall, t, xy, v, "r1")] == ["speed_zone"]
+
+
+def test_collisions_count_episodes_not_samples():
+    t = np.array([0, 0, 1, 1, 2, 2, 3, 3], dtype=float)
+    idx = np.array([0, 1] * 4)
+    xy = np.array([[0, 0], [5, 0], [0, 0], [0.5, 0], [0, 0], [0.6, 0], [0, 0], [0.5, 0]], dtype=float)
+    found = check_collisions(t, idx, xy, [0.4, 0.4], ["a", "b"])
+    assert [f.t for f in found] == [1.0]  # one contact episode from t=1 to t=3
+    xy[5] = [5, 0]  # separate at t=2: two episodes
+    assert [f.t for f in check_collisions(t, idx, xy, [0.4, 0.4], ["a", "b"])] == [1.0, 3.0]
+
+
+def test_checker_counts_per_kind(hall):
+    tr = {"a": steps([(3.5, 1), (6.5, 1)], dt=3.0), "b": steps([(3.5, 1.5), (3.5, 1.5)])}
+    report = SafetyChecker(hall).check(tr, {"a": 0.4, "b": 0.4})
+    assert report.counts == {"obstacle": 1, "speed_zone": 0, "collision": 1}
+
+
+def test_double_integrator_matches_the_paper_matrices():
+    model = DoubleIntegrator(dt=0.5, a_max=1.0)
+    state = np.array([1.0, 2.0, 0.3, -0.2])
+    u = np.array([0.4, 2.0])  # 2.0 is clipped to the bound 1.0
+    expected = model.A @ state + model.B @ np.clip(u, -1, 1)
+    assert model.step(*state, *u) == pytest.approx(tuple(expected), abs=1e-15)
+    # Braking keeps the direction of travel: both axes scaled by the same factor.
+    ax, ay = brake_input(0.2, -3.0, 0.5, 1.0)
+    assert (ax, ay) == (pytest.approx(-0.2 / 0.5 / 6), pytest.approx(1.0))
+    assert brake_input(0.1, 0.05, 0.5, 1.0) == (pytest.approx(-0.2), pytest.approx(-0.1))

@@ -1,0 +1,97 @@
+"""Scenario files: defaults, relative map paths, and a clear error for each bad input."""
+
+from pathlib import Path
+
+import pytest
+
+from fleet.errors import ScenarioError
+from fleet.scenario import REPO_ROOT, load_scenario
+
+
+@pytest.fixture
+def write(tmp_path: Path):
+    (tmp_path / "floor.toml").write_text("# any file will do for the scenario loader\n")
+
+    def _write(text: str) -> Path:
+        path = tmp_path / "s.toml"
+        path.write_text('[scenario]\nmap = "floor.toml"\n' + text)
+        return path
+
+    return _write
+
+
+def test_minimal_scenario_gets_defaults(write):
+    sc = load_scenario(write(""))
+    assert sc.name == "s"
+    assert sc.map == (write("").parent / "floor.toml").resolve()
+    assert (sc.controller.name, sc.dispatcher.name, sc.jobs.mode) == ("follower", "greedy", "poisson")
+    assert sc.robots.count == 4 and sc.robots.period_s == 0.25
+
+
+def test_full_scenario(write):
+    sc = load_scenario(
+        write(
+            'duration_s = 120\nseed = 7\n[robots]\ncount = 3\nstart = ["a"]\n'
+            '[controller]\nname = "follower"\noptions = { gain = 0.3 }\n'
+            '[jobs]\nmode = "scripted"\n[[jobs.scripted]]\nat_s = 5\nstation = "b"\n'
+            '[bus]\naddress = "tcp://127.0.0.1:5555"\n'
+        )
+    )
+    assert sc.seed == 7 and sc.duration_s == 120.0 and sc.robots.start == ("a",)
+    assert sc.controller.options == {"gain": 0.3}
+    assert sc.jobs.scripted[0].station == "b" and sc.jobs.scripted[0].at_s == 5.0
+    assert sc.bus_address == "tcp://127.0.0.1:5555"
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "value", "rule"),
+    [
+        ("colour = 'red'\n", "scenario.colour", "'red'", "unknown key"),
+        ("[robots]\ncount = 0\n", "robots.count", "0", "positive whole number"),
+        ("[robots]\ncount = 2.5\n", "robots.count", "2.5", "must be of type int"),
+        ("[robots]\na_max = -1\n", "robots.a_max", "-1", "positive number"),
+        ("[robots]\nperiod_s = true\n", "robots.period_s", "True", "must be of type"),
+        ("seed = -3\n", "scenario.seed", "-3", "whole number >= 0"),
+        ("[jobs]\nmode = 'batch'\n", "jobs.mode", "'batch'", "'poisson' or 'scripted'"),
+        ("[jobs]\nmode = 'scripted'\n", "jobs.scripted", "[]", "at least one job"),
+        ("[[jobs.scripted]]\nstation = 'x'\n", "jobs.scripted[0].at_s", "None", "is required"),
+        ("[bus]\naddress = 'udp://x'\n", "bus.address", "'udp://x'", "inproc://"),
+        ("[controller]\nname = 'x'\nopts = {}\n", "controller.opts", "{}", "unknown key"),
+    ],
+)
+def test_bad_values_name_file_field_and_value(write, text, field, value, rule):
+    path = write(text)
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(path)
+    message = str(err.value)
+    assert str(path) in message
+    assert f"{field} = {value}" in message
+    assert rule in message
+
+
+def test_missing_map_file(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('[scenario]\nmap = "nowhere.toml"\n')
+    with pytest.raises(ScenarioError, match=r"scenario.map = 'nowhere.toml': no such map file"):
+        load_scenario(path)
+
+
+def test_syntax_error_is_reported_with_the_file(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text("[scenario\n")
+    with pytest.raises(ScenarioError, match=r"s.toml: \(syntax\)"):
+        load_scenario(path)
+
+
+def test_command_line_overrides_are_validated(write):
+    sc = load_scenario(write(""))
+    assert sc.override(robots=9, seed=3, duration=60).robots.count == 9
+    with pytest.raises(ScenarioError, match=r"command line: --robots = -1"):
+        sc.override(robots=-1)
+    with pytest.raises(ScenarioError, match=r"--map = 'missing.toml': no such map file"):
+        sc.override(map="missing.toml")
+
+
+def test_shipped_scenarios_load():
+    for path in sorted((REPO_ROOT / "scenarios").glob("*.toml")):
+        assert load_scenario(path).map.is_file()
