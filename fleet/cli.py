@@ -31,7 +31,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="fleet", description="Simulate fleets of MAMbots on a shop floor.")
+    p = argparse.ArgumentParser(
+        prog="fleet", description="Simulate fleets of MAMbots on a shop floor."
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a scenario and write its run directory")
@@ -61,8 +63,12 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
 
     scenario = load_scenario(args.scenario) if args.scenario else default_scenario()
     scenario = scenario.override(
-        map=args.map, robots=args.robots, controller=args.controller,
-        dispatcher=args.dispatcher, duration=args.duration, seed=args.seed,
+        map=args.map,
+        robots=args.robots,
+        controller=args.controller,
+        dispatcher=args.dispatcher,
+        duration=args.duration,
+        seed=args.seed,
     )
     out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
     world = World(scenario)
@@ -75,8 +81,12 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
             f"{scenario.dispatcher.name}, {scenario.duration_s:g} s simulated, seed {scenario.seed}"
         )
         with Progress(
-            TextColumn("simulating"), BarColumn(), TextColumn("{task.fields[now]:>8.0f} s"),
-            TimeElapsedColumn(), console=console, transient=True,
+            TextColumn("simulating"),
+            BarColumn(),
+            TextColumn("{task.fields[now]:>8.0f} s"),
+            TimeElapsedColumn(),
+            console=console,
+            transient=True,
         ) as bar:
             task = bar.add_task("run", total=scenario.duration_s, now=0.0)
             result = world.run(lambda now: bar.update(task, completed=now, now=now))
@@ -99,8 +109,10 @@ def _kpi_table(console: Console, s: dict) -> None:
         ("robots", str(s["robots"])),
         ("jobs released / completed", f"{jobs['released']} / {jobs['completed']}"),
         ("throughput", f"{s['throughput_per_h']:.1f} jobs/h"),
-        ("mean lead time",
-         "-" if s["mean_lead_time_s"] is None else f"{s['mean_lead_time_s']:.1f} s"),
+        (
+            "mean lead time",
+            "-" if s["mean_lead_time_s"] is None else f"{s['mean_lead_time_s']:.1f} s",
+        ),
         ("distance driven", f"{s['distance_m']:.1f} m"),
         ("violations: obstacle", str(v["obstacle"])),
         ("violations: zone speed", str(v["speed_zone"])),

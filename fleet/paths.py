@@ -3,11 +3,12 @@
 Two layers, both cached per planner:
 
 - `PathPlanner.path` finds a fast collision-free polyline: A* (networkx) over a static graph of
-  points on the portals between convex regions, then string pulling. Leg costs are travel times
-  at each stretch's speed limit, so a path may go around a slow zone when that is quicker.
+  points on the portals between convex regions, then string pulling and sliding each waypoint
+  along its portal. Leg costs are travel times at each stretch's per-axis speed limit, so a path
+  may go around a slow zone when that is quicker.
 - `PathPlanner.reference` turns that polyline into a `Reference`: samples of the paper's discrete
   double integrator (``p[k+1] = p[k] + dt*v[k]``) from rest at the start to rest at the goal.
-  Every corner and every speed-limit change falls exactly on a sample, and one HiGHS LP picks the
+  Every corner and every speed-limit change falls exactly on a sample, and a HiGHS LP picks the
   speeds, so the reference meets the project's step semantics exactly: each step's chord stays in
   the free space, every axis of ``v[k]`` respects the lowest limit of every region the chord
   overlaps with positive length, and ``|v[k+1] - v[k]| <= a_max*dt`` per axis.
@@ -15,7 +16,7 @@ Two layers, both cached per planner:
 
 from __future__ import annotations
 
-__all__ = ["Path", "Reference", "PathPlanner"]
+__all__ = ["Path", "Reference", "PathPlanner", "CacheInfo"]
 
 import functools
 import math
@@ -50,6 +51,8 @@ KEY_DECIMALS = 9
 MAX_PORTAL_NODES = 7
 #: Sweeps of sliding the path's waypoints along their portals after the graph search.
 REFINE_SWEEPS = 3
+#: Length (m) to which a waypoint's place on its portal is refined.
+REFINE_RESOLUTION = 1e-3
 #: Rounds of adding steps to pieces the speed LP cannot cover before stopping at every corner.
 MAX_ROUNDS = 8
 
@@ -219,8 +222,10 @@ class PathPlanner:
         regions = floor.regions
         self._A = np.vstack([r.A for r in regions])
         self._b = np.concatenate([r.b for r in regions])
-        counts = [len(r.b) for r in regions]
-        self._offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
+        self._counts = np.array([len(r.b) for r in regions], dtype=np.intp)
+        first = np.concatenate([[0], np.cumsum(self._counts)[:-1]]).astype(np.intp)
+        self._rows = [np.arange(f, f + c) for f, c in zip(first, self._counts, strict=True)]
+        self._bbox = np.array([r.polygon.bounds for r in regions], dtype=float)
         self._lim = np.minimum(np.array([r.v_max for r in regions], dtype=float), self.v_max)
         # Fastest possible speed along any direction: keeps the A* heuristic admissible.
         self._top_speed = float(np.max(np.hypot(self._lim[:, 0], self._lim[:, 1])))
@@ -293,17 +298,35 @@ class PathPlanner:
 
     # -- geometry on the H-representation -----------------------------------------------------
     def _clip(self, P: np.ndarray, Q: np.ndarray):
-        """Clip segments ``P[i] -> Q[i]`` against every region (Cyrus-Beck on the half-spaces).
+        """Clip segments ``P[i] -> Q[i]`` against the regions near them (Cyrus-Beck).
 
-        Returns ``L`` (n,), ``u`` (n, 2) unit directions, ``lo`` and ``hi`` (n, regions): the
-        overlap with each region is ``[lo, hi]`` in metres along the segment (empty if lo > hi),
-        and ``contains`` (n, regions): whether the region holds the start point.
+        Returns ``L`` (n,), ``u`` (n, 2) unit directions, ``lo`` and ``hi`` (n, m): the overlap
+        with region ``sel[j]`` is ``[lo[:, j], hi[:, j]]`` in metres along the segment (empty if
+        lo > hi), ``contains`` (n, m): whether that region holds the start point, and ``sel``
+        (m,): the regions whose bounding box meets the segments' (the others cannot overlap).
         """
         d = Q - P
         L = np.hypot(d[:, 0], d[:, 1])
         u = d / np.where(L > 0, L, 1.0)[:, None]
-        num = self._b[None, :] - P @ self._A.T
-        den = u @ self._A.T
+        pad = FLOOR_TOLERANCE
+        lo_xy = np.minimum(P.min(axis=0), Q.min(axis=0)) - pad
+        hi_xy = np.maximum(P.max(axis=0), Q.max(axis=0)) + pad
+        box = self._bbox
+        sel = np.flatnonzero(
+            (box[:, 0] <= hi_xy[0])
+            & (box[:, 2] >= lo_xy[0])
+            & (box[:, 1] <= hi_xy[1])
+            & (box[:, 3] >= lo_xy[1])
+        )
+        n = len(L)
+        if len(sel) == 0:
+            empty = np.zeros((n, 0))
+            return L, u, empty, empty, empty.astype(bool), sel
+        rows = np.concatenate([self._rows[i] for i in sel])
+        offsets = np.concatenate([[0], np.cumsum(self._counts[sel])[:-1]]).astype(np.intp)
+        A, b = self._A[rows], self._b[rows]
+        num = b[None, :] - P @ A.T
+        den = u @ A.T
         with np.errstate(divide="ignore", invalid="ignore"):
             bound = num / den
         par = np.abs(den) <= _PARALLEL
@@ -311,24 +334,28 @@ class PathPlanner:
         lower = np.where(den < -_PARALLEL, bound, -np.inf)
         # Running along (or outside) a boundary line: the whole segment is in or out of it.
         upper = np.where(par & (num < -ON_LINE_TOL), -np.inf, upper)
-        hi = np.minimum(np.minimum.reduceat(upper, self._offsets, axis=1), L[:, None])
-        lo = np.maximum(np.maximum.reduceat(lower, self._offsets, axis=1), 0.0)
-        contains = np.logical_and.reduceat(num >= -FLOOR_TOLERANCE, self._offsets, axis=1)
-        return L, u, lo, hi, contains
+        hi = np.minimum(np.minimum.reduceat(upper, offsets, axis=1), L[:, None])
+        lo = np.maximum(np.maximum.reduceat(lower, offsets, axis=1), 0.0)
+        contains = np.logical_and.reduceat(num >= -FLOOR_TOLERANCE, offsets, axis=1)
+        return L, u, lo, hi, contains, sel
 
     def _limits(self, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Vectorised `speed_limit`: per-segment limits (n, 2) and whether each stays free."""
-        L, _, lo, hi, contains = self._clip(P, Q)
+        L, _, lo, hi, contains, sel = self._clip(P, Q)
         point = L <= OVERLAP_TOL
         over = (hi - lo) > OVERLAP_TOL
         use = np.where(point[:, None], contains, over)
-        lim = np.where(use[:, :, None], self._lim[None, :, :], np.inf).min(axis=1)
+        lim = np.where(use[:, :, None], self._lim[sel][None, :, :], np.inf).min(
+            axis=1, initial=np.inf
+        )
         lim = np.minimum(lim, self.v_max)
         return lim, self._covered(L, lo, hi, contains)
 
     def _covered(self, L, lo, hi, contains) -> np.ndarray:
         """Whether each clipped segment stays in the free space (no gap over `GAP_TOL`)."""
         point = L <= OVERLAP_TOL
+        if lo.shape[1] == 0:
+            return np.zeros(len(L), dtype=bool)
         over = (hi - lo) > OVERLAP_TOL
         # Covered when the overlaps, sorted by start, leave no gap longer than GAP_TOL.
         lo_m = np.where(over, lo, np.inf)
@@ -349,7 +376,7 @@ class PathPlanner:
         Each stretch's limit is the minimum over the regions it overlaps with positive length,
         so any sub-segment of a stretch obeys it. None if the segment leaves the free space.
         """
-        L, _, lo, hi, _ = self._clip(p[None, :], q[None, :])
+        L, _, lo, hi, _, sel = self._clip(p[None, :], q[None, :])
         L, lo, hi = float(L[0]), lo[0], hi[0]
         over = np.flatnonzero((hi - lo) > OVERLAP_TOL)
         cuts = np.sort(np.concatenate([[0.0, L], lo[over], hi[over]]))
@@ -368,7 +395,7 @@ class PathPlanner:
                 if out:
                     out[-1] = (out[-1][0], b, out[-1][2])
                 continue
-            lim = np.minimum(self._lim[cover].min(axis=0), self.v_max)
+            lim = np.minimum(self._lim[sel[cover]].min(axis=0), self.v_max)
             if out and np.array_equal(out[-1][2], lim):
                 out[-1] = (out[-1][0], b, lim)
             else:
@@ -477,8 +504,8 @@ class PathPlanner:
 
     def _regions_at(self, p: XY, which: str, start: XY, goal: XY) -> np.ndarray:
         P = np.asarray([p], dtype=float)
-        _, _, _, _, contains = self._clip(P, P)
-        inside = np.flatnonzero(contains[0])
+        _, _, _, _, contains, sel = self._clip(P, P)
+        inside = sel[contains[0]]
         if len(inside) == 0:
             near = nearest_points(self.floor.free_space, Point(p))[0]
             dist = near.distance(Point(p))
@@ -621,19 +648,24 @@ class PathPlanner:
                 if np.array_equal(a, b):
                     continue
                 prev, nxt = pts[i - 1], pts[i + 1]
+                span = float(np.hypot(*(b - a)))
                 lo, hi = 0.0, 1.0
                 best_t = None
-                for _level in range(3):
+                # Coarse to fine: each level zooms on the best grid point and its neighbours.
+                while True:
                     ts = np.linspace(lo, hi, 9)
                     X = a + ts[:, None] * (b - a)
-                    t1, ok1 = self._times(np.broadcast_to(prev, X.shape), X)
-                    t2, ok2 = self._times(X, np.broadcast_to(nxt, X.shape))
-                    total = np.where(ok1 & ok2, t1 + t2, np.inf)
+                    P = np.concatenate([np.broadcast_to(prev, X.shape), X])
+                    Q = np.concatenate([X, np.broadcast_to(nxt, X.shape)])
+                    t, ok = self._times(P, Q)
+                    total = np.where(ok[:9] & ok[9:], t[:9] + t[9:], np.inf)
                     k = int(np.argmin(total))
                     if not np.isfinite(total[k]):
                         break
                     best_t = float(ts[k])
                     lo, hi = float(ts[max(k - 1, 0)]), float(ts[min(k + 1, 8)])
+                    if (hi - lo) * span <= REFINE_RESOLUTION:
+                        break
                 if best_t is None:
                     continue
                 x = a + best_t * (b - a)
@@ -651,12 +683,12 @@ class PathPlanner:
         Each region's overlap is driven at that region's limit; a stretch along a shared
         boundary counts once per region, so the time is exact or an overestimate.
         """
-        L, u, lo, hi, contains = self._clip(P, Q)
+        L, u, lo, hi, contains, sel = self._clip(P, Q)
         over = np.maximum(hi - lo, 0.0)
         over = np.where(over > OVERLAP_TOL, over, 0.0)
         with np.errstate(divide="ignore"):
             speed = np.where(
-                np.abs(u)[:, None, :] > 0, self._lim[None] / np.abs(u)[:, None, :], np.inf
+                np.abs(u)[:, None, :] > 0, self._lim[sel][None] / np.abs(u)[:, None, :], np.inf
             )
         t = (over / speed.min(axis=2)).sum(axis=1)
         return t, self._covered(L, lo, hi, contains)

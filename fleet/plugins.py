@@ -140,6 +140,7 @@ class Command:
 
     `plan` optionally carries the controller's intended trajectory as ``(t, x, y)`` samples
     (the MPC's horizon, the follower's next seconds) so other robots and the replay can see it.
+    An empty plan means "no news": the latest plan sent still holds.
     """
 
     ax: float

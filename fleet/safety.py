@@ -143,7 +143,10 @@ def _speed_violations(floor, t, xy, v, seg_idx, lines, robot) -> list[Violation]
 
 
 def check_collisions(
-    t: np.ndarray, robot_index: np.ndarray, xy: np.ndarray, radii: Sequence[float],
+    t: np.ndarray,
+    robot_index: np.ndarray,
+    xy: np.ndarray,
+    radii: Sequence[float],
     names: Sequence[str],
 ) -> list[Violation]:
     """Pairs of robots closer than the sum of their radii at a common sample time.
@@ -166,32 +169,44 @@ def check_collisions(
     for step, (a, b) in enumerate(zip(np.r_[0, bounds], np.r_[bounds, len(t)], strict=True)):
         if b - a < 2:
             continue
-        p = xy[a:b]
-        ids = robot_index[a:b]
-        # Sort by x and compare only within reach: near-linear for spread-out fleets.
-        sx = np.argsort(p[:, 0], kind="stable")
-        ps, idx = p[sx], ids[sx]
-        for i in range(len(ps) - 1):
-            j_end = np.searchsorted(ps[:, 0], ps[i, 0] + reach, side="right")
-            if j_end <= i + 1:
-                continue
-            d = np.hypot(ps[i + 1 : j_end, 0] - ps[i, 0], ps[i + 1 : j_end, 1] - ps[i, 1])
-            for off in np.flatnonzero(d < radii_arr[idx[i]] + radii_arr[idx[i + 1 : j_end]] - 1e-9):
-                r1, r2 = sorted((int(idx[i]), int(idx[i + 1 + off])))
-                key = (r1, r2)
-                if last_contact.get(key) != step - 1:
-                    out.append(
-                        Violation(
-                            "collision",
-                            names[r1],
-                            float(t[a]),
-                            float(ps[i, 0]),
-                            float(ps[i, 1]),
-                            f"{names[r1]} and {names[r2]} {d[off]:.3f} m apart",
-                        )
+        for i, j, d in _close_pairs(xy[a:b], robot_index[a:b], radii_arr, reach):
+            key = (i, j)
+            if last_contact.get(key) != step - 1:
+                p = xy[a:b][robot_index[a:b] == i][0]
+                out.append(
+                    Violation(
+                        "collision",
+                        names[i],
+                        float(t[a]),
+                        float(p[0]),
+                        float(p[1]),
+                        f"{names[i]} and {names[j]} {d:.3f} m apart",
                     )
-                last_contact[key] = step
+                )
+            last_contact[key] = step
     return out
+
+
+def _close_pairs(p: np.ndarray, ids: np.ndarray, radii: np.ndarray, reach: float):
+    """Pairs (i, j, distance), i < j, of robots at positions `p` closer than their radii sum."""
+    if len(p) <= 256:
+        # All pairs at once: cheap for the fleet sizes most runs have.
+        d = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
+        limit = radii[ids][:, None] + radii[ids][None, :] - 1e-9
+        a, b = np.nonzero(np.triu(d < limit, k=1))
+        pairs = [(int(ids[x]), int(ids[y]), float(d[x, y])) for x, y in zip(a, b, strict=True)]
+    else:
+        # Large fleets: sort by x and compare only within reach.
+        order = np.argsort(p[:, 0], kind="stable")
+        ps, idx = p[order], ids[order]
+        pairs = []
+        ends = np.searchsorted(ps[:, 0], ps[:, 0] + reach, side="right")
+        for i in np.flatnonzero(ends > np.arange(len(ps)) + 1):
+            sl = slice(i + 1, ends[i])
+            d = np.hypot(ps[sl, 0] - ps[i, 0], ps[sl, 1] - ps[i, 1])
+            for off in np.flatnonzero(d < radii[idx[i]] + radii[idx[sl]] - 1e-9):
+                pairs.append((int(idx[i]), int(idx[i + 1 + off]), float(d[off])))
+    return [(min(i, j), max(i, j), d) for i, j, d in pairs]
 
 
 class SafetyChecker:

@@ -84,7 +84,7 @@ class Scenario:
     jobs: JobsConfig = field(default_factory=JobsConfig)
     bus_address: str | None = None  # None -> a private inproc:// address
     arrival_tolerance_m: float = 0.05
-    sensing_radius_m: float = 5.0
+    sensing_radius_m: float = 0.0  # > 0: observations list the robots this close (nearest 8)
 
     def override(
         self,
@@ -105,7 +105,9 @@ class Scenario:
                 raise ScenarioError(src, "--map", str(map), "no such map file")
             out = replace(out, map=path.resolve())
         if robots is not None:
-            out = replace(out, robots=replace(out.robots, count=_positive_int(src, "--robots", robots)))
+            out = replace(
+                out, robots=replace(out.robots, count=_positive_int(src, "--robots", robots))
+            )
         if controller is not None:
             out = replace(out, controller=PluginChoice(controller))
         if dispatcher is not None:
@@ -141,8 +143,12 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(src, "scenario.map", map_value, f"no such map file ({map_path})")
     duration = _positive(src, "scenario.duration_s", sc.take("duration_s", (int, float), 600.0))
     seed = _seed(src, "scenario.seed", sc.take("seed", int, 1))
-    tol = _positive(src, "scenario.arrival_tolerance_m", sc.take("arrival_tolerance_m", (int, float), 0.05))
-    sensing = _non_negative(src, "scenario.sensing_radius_m", sc.take("sensing_radius_m", (int, float), 5.0))
+    tol = _positive(
+        src, "scenario.arrival_tolerance_m", sc.take("arrival_tolerance_m", (int, float), 0.05)
+    )
+    sensing = _non_negative(
+        src, "scenario.sensing_radius_m", sc.take("sensing_radius_m", (int, float), 0.0)
+    )
     sc.finish()
 
     rb = root.table("robots")
@@ -172,7 +178,9 @@ def load_scenario(path: str | Path) -> Scenario:
     scripted = []
     for i, item in enumerate(jb.take_list("scripted", dict, ())):
         t = _Table(src, f"jobs.scripted[{i}].", item)
-        at = _non_negative(src, f"jobs.scripted[{i}].at_s", t.take("at_s", (int, float), required=True))
+        at = _non_negative(
+            src, f"jobs.scripted[{i}].at_s", t.take("at_s", (int, float), required=True)
+        )
         station = t.take("station", str, required=True)
         due = t.take("due_s", (int, float), None)
         t.finish()
@@ -180,12 +188,16 @@ def load_scenario(path: str | Path) -> Scenario:
     if mode == "scripted" and not scripted:
         raise ScenarioError(src, "jobs.scripted", [], "mode 'scripted' needs at least one job")
     jb.finish()
-    jobs = JobsConfig(mode, float(rate), stations, None if due_in is None else float(due_in), tuple(scripted))
+    jobs = JobsConfig(
+        mode, float(rate), stations, None if due_in is None else float(due_in), tuple(scripted)
+    )
 
     bus = root.table("bus")
     address = bus.take("address", str, None)
     if address is not None and not address.startswith(("inproc://", "ipc://", "tcp://")):
-        raise ScenarioError(src, "bus.address", address, "must start with inproc://, ipc:// or tcp://")
+        raise ScenarioError(
+            src, "bus.address", address, "must start with inproc://, ipc:// or tcp://"
+        )
     bus.finish()
     root.finish()
     return Scenario(
@@ -217,7 +229,9 @@ class _Table:
 
     def __init__(self, source: str, prefix: str, data: Any) -> None:
         if not isinstance(data, dict):
-            raise ScenarioError(source, prefix.rstrip(".") or "(top level)", data, "must be a table")
+            raise ScenarioError(
+                source, prefix.rstrip(".") or "(top level)", data, "must be a table"
+            )
         self.source, self.prefix, self.data, self.seen = source, prefix, data, set()
 
     def table(self, key: str) -> _Table:
@@ -243,7 +257,10 @@ class _Table:
         for i, item in enumerate(value):
             if not isinstance(item, kind):
                 raise ScenarioError(
-                    self.source, f"{self.prefix}{key}[{i}]", item, f"must be of type {kind.__name__}"
+                    self.source,
+                    f"{self.prefix}{key}[{i}]",
+                    item,
+                    f"must be of type {kind.__name__}",
                 )
         return value
 
@@ -252,19 +269,31 @@ class _Table:
         if unknown:
             allowed = ", ".join(sorted(self.seen))
             raise ScenarioError(
-                self.source, self.prefix + unknown[0], self.data[unknown[0]],
+                self.source,
+                self.prefix + unknown[0],
+                self.data[unknown[0]],
                 f"unknown key (allowed here: {allowed})",
             )
 
 
 def _positive(src: str, fld: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value <= 0
+    ):
         raise ScenarioError(src, fld, value, "must be a positive number")
     return float(value)
 
 
 def _non_negative(src: str, fld: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value < 0
+    ):
         raise ScenarioError(src, fld, value, "must be a number >= 0")
     return float(value)
 

@@ -1,9 +1,14 @@
 """Engine throughput: robot-steps per second with the baseline follower, in one process.
 
-Runs the shop floor with 10, 100 and 1000 robots (greedy dispatcher, Poisson jobs scaled with
-the fleet) and prints, per fleet size, the set-up time (World construction: map, plugins, bus),
-the run's wall time and robot-steps per wall second (median of --repeats runs). Nothing here is
-asserted: the figures go in notes and the README.
+Runs the shop floor with 10, 100 and 1000 robots and prints, per fleet size and load, the set-up
+time (World construction: map, plugins, bus), the run's wall time (simulation plus the summary's
+safety check) and robot-steps per wall second, medians of --repeats runs. Two loads:
+
+- ``busy``: Poisson jobs, one per robot every two minutes on average, so the figure includes
+  path planning (A* and the reference LP) for every trip;
+- ``idle``: no jobs, robots hold at home: the cost of the engine, the bus and the controller alone.
+
+Nothing here is asserted: the figures go in notes and the README.
 
     python scripts/bench_engine.py [--sizes 10 100 1000] [--steps 100000] [--repeats 3]
 """
@@ -17,7 +22,7 @@ from dataclasses import replace
 
 from fleet.engine import World
 from fleet.floor import load_floor
-from fleet.scenario import REPO_ROOT, load_scenario
+from fleet.scenario import REPO_ROOT, JobsConfig, ScriptedJob, load_scenario
 
 
 def main() -> None:
@@ -30,14 +35,16 @@ def main() -> None:
     base = load_scenario(REPO_ROOT / "scenarios" / "default.toml")
     floor = load_floor(base.map)
     print(f"map {floor.name}: {len(floor.regions)} regions; controller follower, dispatcher greedy")
-    print(f"{'robots':>7} {'sim s':>7} {'steps':>9} {'setup s':>8} {'run s':>8} {'steps/s':>10}")
-    for n in args.sizes:
+    print(
+        f"{'robots':>7} {'load':>5} {'sim s':>7} {'steps':>9} {'setup s':>8} {'run s':>8} "
+        f"{'steps/s':>10}"
+    )
+    never = JobsConfig(mode="scripted", scripted=(ScriptedJob(1e12, floor.spec.stations[-1].name),))
+    for n, load in [(n, load) for n in args.sizes for load in ("busy", "idle")]:
         duration = max(10.0, args.steps * base.robots.period_s / n)
-        sc = replace(
-            base.override(robots=n, duration=duration),
-            # Keep robots busy: about one job per robot every two minutes.
-            jobs=replace(base.jobs, rate_per_h=30.0 * n),
-        )
+        busy = replace(base.jobs, rate_per_h=30.0 * n)
+        jobs = busy if load == "busy" else never
+        sc = replace(base.override(robots=n, duration=duration), jobs=jobs)
         setups, runs, rates = [], [], []
         for _ in range(args.repeats):
             t0 = time.perf_counter()
@@ -50,7 +57,7 @@ def main() -> None:
             runs.append(t2 - t1)
             rates.append(steps / (t2 - t1))
         print(
-            f"{n:>7} {duration:>7.0f} {steps:>9} {statistics.median(setups):>8.2f} "
+            f"{n:>7} {load:>5} {duration:>7.0f} {steps:>9} {statistics.median(setups):>8.2f} "
             f"{statistics.median(runs):>8.2f} {statistics.median(rates):>10.0f}"
         )
 

@@ -91,7 +91,9 @@ def test_scripted_jobs_arrive_in_order(scenario_file):
     sc = load_scenario(scenario_file)
     sc = replace(
         sc,
-        jobs=JobsConfig(mode="scripted", scripted=(ScriptedJob(10.0, "north"), ScriptedJob(0.0, "east"))),
+        jobs=JobsConfig(
+            mode="scripted", scripted=(ScriptedJob(10.0, "north"), ScriptedJob(0.0, "east"))
+        ),
     )
     world = World(sc)
     world.run()

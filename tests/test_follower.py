@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import shapely
 from fleet_plugins.follower import PathFollower
+from fleet_plugins.follower.controller import PLAN_SAMPLE
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -145,19 +146,24 @@ def test_drives_around_the_press_into_the_slow_zone_reproducing_the_reference() 
     assert all(c.status is ControlStatus.OK for c in run.commands)
 
 
-def test_the_command_plan_is_the_next_five_seconds_of_the_reference() -> None:
+def test_the_command_plan_samples_the_next_five_seconds_of_the_reference() -> None:
     start, goal = (2.0, 5.0), (18.0, 7.0)
     ref = PLANNER.reference(start, goal, dt=DT, t0=0.0)
     run = Run.at(start)
-    for _ in range(12):
+    for _ in range(13):
         run.step(goal)
+    stride = round(PLAN_SAMPLE / DT)
+    # Plans ride on every `stride`-th tick only; the ticks between carry none.
+    assert [bool(c.plan) for c in run.commands] == [i % stride == 0 for i in range(13)]
     cmd = run.commands[-1]
     times = np.array([s[0] for s in cmd.plan])
     points = np.array([s[1:] for s in cmd.plan])
-    k = 11
+    k = 12
     assert times[0] == pytest.approx(run.t[-1])
     assert times[-1] - times[0] == pytest.approx(5.0)
-    np.testing.assert_allclose(points, ref.positions[k : k + len(points)], atol=1e-12)
+    assert np.allclose(np.diff(times), stride * DT)
+    expected = ref.positions[k : k + round(5.0 / DT) + 1 : stride]
+    np.testing.assert_allclose(points, expected, atol=1e-12)
 
 
 def test_holds_at_the_goal_without_drifting() -> None:

@@ -31,7 +31,9 @@ def steps(points, dt=1.0):
 
 
 def test_clean_trajectory_has_no_violations(hall):
-    t, xy, v = steps([(1, 1), (2, 1.5), (3, 2.5), (4, 3), (5, 3), (6, 3), (6.5, 2.5), (6.9, 2.5), (7.2, 2.5)])
+    t, xy, v = steps(
+        [(1, 1), (2, 1.5), (3, 2.5), (4, 3), (5, 3), (6, 3), (6.5, 2.5), (6.9, 2.5), (7.2, 2.5)]
+    )
     assert check_steps(hall, t, xy, v, "r1") == []
 
 
@@ -72,7 +74,9 @@ def test_per_axis_limit(hall):
 def test_collisions_count_episodes_not_samples():
     t = np.array([0, 0, 1, 1, 2, 2, 3, 3], dtype=float)
     idx = np.array([0, 1] * 4)
-    xy = np.array([[0, 0], [5, 0], [0, 0], [0.5, 0], [0, 0], [0.6, 0], [0, 0], [0.5, 0]], dtype=float)
+    xy = np.array(
+        [[0, 0], [5, 0], [0, 0], [0.5, 0], [0, 0], [0.6, 0], [0, 0], [0.5, 0]], dtype=float
+    )
     found = check_collisions(t, idx, xy, [0.4, 0.4], ["a", "b"])
     assert [f.t for f in found] == [1.0]  # one contact episode from t=1 to t=3
     xy[5] = [5, 0]  # separate at t=2: two episodes

@@ -24,7 +24,11 @@ def test_minimal_scenario_gets_defaults(write):
     sc = load_scenario(write(""))
     assert sc.name == "s"
     assert sc.map == (write("").parent / "floor.toml").resolve()
-    assert (sc.controller.name, sc.dispatcher.name, sc.jobs.mode) == ("follower", "greedy", "poisson")
+    assert (sc.controller.name, sc.dispatcher.name, sc.jobs.mode) == (
+        "follower",
+        "greedy",
+        "poisson",
+    )
     assert sc.robots.count == 4 and sc.robots.period_s == 0.25
 
 

@@ -141,7 +141,8 @@ class Exchange:
         """Accept agents until every robot in `robots` is hosted by one of them.
 
         HELLOs are answered with WELCOME; a robot claimed by a second agent, or not in
-        `robots`, is refused (and logged). From now on only these robots are accepted.
+        `robots` (nor in an earlier call's), is refused and logged; so is every robot of an
+        agent whose name another agent already uses.
 
         Raises
         ------

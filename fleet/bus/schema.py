@@ -160,7 +160,7 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
     }
     try:
         return _to_json(envelope).encode()
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, RecursionError) as exc:
         where = _find_unencodable(body, "body") or "body"
         raise MessageError(
             f"cannot encode {kind.name} from {sender!r} at tick {tick}: {where}: {exc}"
@@ -231,6 +231,11 @@ _OBSERVATION_FIELDS = frozenset(
     ("robot", "tick", "t", "x", "y", "vx", "vy", "goal", "job", "speed_cap", "neighbours")
 )
 _COMMAND_FIELDS = frozenset(("ax", "ay", "status", "plan"))
+_HELLO_FIELDS = frozenset(("robots",))
+_WELCOME_FIELDS = frozenset(("accepted", "rejected"))
+_OBSERVE_FIELDS = frozenset(("t", "observations"))
+_ACT_FIELDS = frozenset(("commands",))
+_BYE_FIELDS = frozenset(("reason",))
 
 
 def decode(raw: bytes, expect: Collection[MessageKind] | None = None) -> Message:
@@ -331,12 +336,14 @@ def command_from_wire(d: Any) -> Command:
 
 
 def _hello_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    _check_fields(body, f"{where}: body", frozenset(("robots",)))
+    if body.keys() != _HELLO_FIELDS:
+        _check_fields(body, f"{where}: body", _HELLO_FIELDS)
     return {"robots": _robot_list(body["robots"], f"{where}: body.robots")}
 
 
 def _welcome_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    _check_fields(body, f"{where}: body", frozenset(("accepted", "rejected")))
+    if body.keys() != _WELCOME_FIELDS:
+        _check_fields(body, f"{where}: body", _WELCOME_FIELDS)
     accepted = _robot_list(body["accepted"], f"{where}: body.accepted")
     rejected = body["rejected"]
     if type(rejected) is not dict:
@@ -363,9 +370,6 @@ def _observe_body(body: dict[str, Any], where: str) -> dict[str, Any]:
     return {"t": t, "observations": observations}
 
 
-_OBSERVE_FIELDS = frozenset(("t", "observations"))
-
-
 def _act_body(body: dict[str, Any], where: str) -> dict[str, Any]:
     if body.keys() != _ACT_FIELDS:
         _check_fields(body, f"{where}: body", _ACT_FIELDS)
@@ -381,11 +385,9 @@ def _act_body(body: dict[str, Any], where: str) -> dict[str, Any]:
     return {"commands": commands}
 
 
-_ACT_FIELDS = frozenset(("commands",))
-
-
 def _bye_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    _check_fields(body, f"{where}: body", frozenset(("reason",)))
+    if body.keys() != _BYE_FIELDS:
+        _check_fields(body, f"{where}: body", _BYE_FIELDS)
     reason = body["reason"]
     if type(reason) is not str:
         raise _fail(f"{where}: body.reason", reason, "must be a string")

@@ -42,14 +42,19 @@ def destination_stations(floor: Floor, config: JobsConfig, source: str) -> list[
         for i, name in enumerate(config.stations):
             if name not in known:
                 raise ScenarioError(
-                    source, f"jobs.stations[{i}]", name,
+                    source,
+                    f"jobs.stations[{i}]",
+                    name,
                     f"no such station on {floor.source} (known: {', '.join(sorted(known))})",
                 )
         return list(config.stations)
     names = [s.name for s in floor.spec.stations if s.kind != "depot"]
     if not names:
         raise ScenarioError(
-            source, "jobs.stations", [], f"{floor.source} has no non-depot station; list destinations"
+            source,
+            "jobs.stations",
+            [],
+            f"{floor.source} has no non-depot station; list destinations",
         )
     return names
 
@@ -66,7 +71,9 @@ class JobSource:
         for i, item in enumerate(config.scripted):
             if item.station not in {s.name for s in floor.spec.stations}:
                 raise ScenarioError(
-                    source, f"jobs.scripted[{i}].station", item.station,
+                    source,
+                    f"jobs.scripted[{i}].station",
+                    item.station,
                     f"no such station on {floor.source}",
                 )
 

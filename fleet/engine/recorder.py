@@ -93,7 +93,9 @@ class Recorder:
     # -- writing ------------------------------------------------------------------------------
     def write(self, out_dir: Path, summary: dict[str, Any], floor: Floor, violations: list) -> None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        (out_dir / "summary.json").write_text(
+            json.dumps(summary, indent=2) + "\n", encoding="utf-8"
+        )
         self._write_trajectories(out_dir / "trajectories.csv", floor)
         with open(out_dir / "events.csv", "w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
@@ -106,7 +108,9 @@ class Recorder:
                 w = csv.writer(fh)
                 w.writerow(["t", "kind", "robot", "x", "y", "detail"])
                 for v in violations:
-                    w.writerow([f"{v.t:.6f}", v.kind, v.robot, f"{v.x:.6f}", f"{v.y:.6f}", v.detail])
+                    w.writerow(
+                        [f"{v.t:.6f}", v.kind, v.robot, f"{v.x:.6f}", f"{v.y:.6f}", v.detail]
+                    )
         elif vpath.exists():
             vpath.unlink()
 

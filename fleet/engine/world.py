@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import networkx as nx
 import numpy as np
 import simpy
 
@@ -50,6 +51,8 @@ log = logging.getLogger("fleet.engine")
 
 #: A robot counts as stopped below this speed (m/s) per axis.
 REST_SPEED = 1e-3
+#: At most this many neighbours (the nearest) go into one observation.
+MAX_NEIGHBOURS = 8
 
 
 @dataclass(slots=True)
@@ -142,41 +145,58 @@ class World:
         for i, name in enumerate(names):
             if name not in stations:
                 raise ScenarioError(
-                    self.scenario.source, f"robots.start[{i}]", name,
-                    f"no such station on {self.floor.source} (known: {', '.join(sorted(stations))})",
+                    self.scenario.source,
+                    f"robots.start[{i}]",
+                    name,
+                    f"no such station on {self.floor.source} "
+                    f"(known: {', '.join(sorted(stations))})",
                 )
         if not names:
             names = [s.name for s in self.floor.spec.stations if s.kind == "depot"]
             names = names or [self.floor.spec.stations[0].name]
         spacing = 2.0 * self.scenario.robots.radius + 0.2
-        taken: list[tuple[float, float]] = []
+        components = {
+            region: n
+            for n, members in enumerate(nx.connected_components(self.floor.graph))
+            for region in members
+        }
+        taken: dict[tuple[int, int], list[tuple[float, float]]] = defaultdict(list)
+        spots = {name: self._spots_around(stations[name], spacing, components) for name in names}
         out = []
         for i in range(count):
-            s = stations[names[i % len(names)]]
-            out.append(self._free_spot(s.x, s.y, spacing, taken))
-            taken.append(out[-1])
+            name = names[i % len(names)]
+            for p in spots[name]:
+                cx, cy = int(p[0] // spacing), int(p[1] // spacing)
+                near = (
+                    q for dx in (-1, 0, 1) for dy in (-1, 0, 1) for q in taken[cx + dx, cy + dy]
+                )
+                if all(math.hypot(p[0] - q[0], p[1] - q[1]) >= spacing - 1e-9 for q in near):
+                    taken[cx, cy].append(p)
+                    out.append(p)
+                    break
+            else:
+                s = stations[name]
+                raise ScenarioError(
+                    self.scenario.source,
+                    "robots.count",
+                    self.scenario.robots.count,
+                    f"no free start position left near {name} ({s.x:g}, {s.y:g}); "
+                    "use fewer robots or more start stations",
+                )
         return out
 
-    def _free_spot(self, x: float, y: float, spacing: float, taken) -> tuple[float, float]:
-        # Walk outward on a square grid around the station until a free, unoccupied spot is found.
-        for ring in range(0, 50):
+    def _spots_around(self, station, spacing: float, components: dict[int, int]):
+        """Free spots on a square grid around `station`, ring by ring, reachable from it."""
+        home = components.get(self.floor.locate(station.x, station.y))
+        for ring in range(0, 60):
             for dx in range(-ring, ring + 1):
                 for dy in range(-ring, ring + 1):
                     if max(abs(dx), abs(dy)) != ring:
                         continue
-                    p = (x + dx * spacing, y + dy * spacing)
-                    if not self.floor.is_free(*p):
-                        continue
-                    if all(math.hypot(p[0] - q[0], p[1] - q[1]) >= spacing - 1e-9 for q in taken):
-                        try:
-                            self.planner.path(p, (x, y))
-                        except Exception:  # unreachable spot (e.g. behind a machine)
-                            continue
-                        return p
-        raise ScenarioError(
-            self.scenario.source, "robots.count", self.scenario.robots.count,
-            f"no free start position left near ({x:g}, {y:g}); use fewer robots or more start stations",
-        )
+                    p = (station.x + dx * spacing, station.y + dy * spacing)
+                    region = self.floor.locate(*p)
+                    if region is not None and components[region] == home:
+                        yield p
 
     # -- processes ------------------------------------------------------------------------------
     def _release_jobs(self):
@@ -247,7 +267,14 @@ class World:
                 goal = r.home
             out.append(
                 Observation(
-                    robot=r.id, tick=r.tick, t=t, x=r.x, y=r.y, vx=r.vx, vy=r.vy, goal=goal,
+                    robot=r.id,
+                    tick=r.tick,
+                    t=t,
+                    x=r.x,
+                    y=r.y,
+                    vx=r.vx,
+                    vy=r.vy,
+                    goal=goal,
                     job=None if r.job is None else r.job.job.id,
                     neighbours=near.get(r.id, ()),
                 )
@@ -266,10 +293,13 @@ class World:
             for dx in (-1, 0, 1):
                 for dy in (-1, 0, 1):
                     for o in cells.get((cx + dx, cy + dy), ()):
-                        if o is not r and (o.x - r.x) ** 2 + (o.y - r.y) ** 2 <= r2:
-                            found.append(Neighbour(o.id, o.x, o.y, o.vx, o.vy))
-            found.sort(key=lambda n: n.robot)
-            out[r.id] = tuple(found)
+                        d2 = (o.x - r.x) ** 2 + (o.y - r.y) ** 2
+                        if o is not r and d2 <= r2:
+                            found.append((d2, o.id, o))
+            found.sort()
+            out[r.id] = tuple(
+                Neighbour(o.id, o.x, o.y, o.vx, o.vy) for _, _, o in found[:MAX_NEIGHBOURS]
+            )
         return out
 
     # -- jobs -----------------------------------------------------------------------------------
@@ -303,8 +333,11 @@ class World:
             robot = self.robots.get(a.robot)
             if rec is None or robot is None or robot.job is not None or a.job in taken_jobs:
                 self.stats["assignments_rejected"] += 1
-                log.warning("dispatcher %r made an invalid assignment %s; ignored",
-                            self.scenario.dispatcher.name, a)
+                log.warning(
+                    "dispatcher %r made an invalid assignment %s; ignored",
+                    self.scenario.dispatcher.name,
+                    a,
+                )
                 continue
             taken_jobs.add(a.job)
             rec.robot, rec.assigned_s = robot.id, self.env.now
@@ -364,7 +397,9 @@ class World:
             "jobs": {
                 "released": len(self.jobs),
                 "completed": len(completed),
-                "assigned_open": sum(1 for rec in self.jobs if rec.robot and rec.delivered_s is None),
+                "assigned_open": sum(
+                    1 for rec in self.jobs if rec.robot and rec.delivered_s is None
+                ),
                 "unassigned": sum(1 for rec in self.jobs if rec.open),
             },
             "throughput_per_h": round(len(completed) / hours, 6) if hours > 0 else 0.0,

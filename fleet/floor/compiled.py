@@ -84,7 +84,9 @@ class Floor:
     and must together cover the free space.
     """
 
-    def __init__(self, spec: FloorSpec, free_space: Polygon | MultiPolygon, regions: Sequence[Region]):
+    def __init__(
+        self, spec: FloorSpec, free_space: Polygon | MultiPolygon, regions: Sequence[Region]
+    ):
         self.spec = spec
         self.free_space = free_space
         self.regions: list[Region] = list(regions)
@@ -161,9 +163,13 @@ class Floor:
     def locate(self, x: float, y: float, tol: float = TOLERANCE) -> int | None:
         """Index of a region containing (x, y), preferring the slowest on shared boundaries."""
         best: int | None = None
-        for i in self._tree.query(shapely.points(x, y).buffer(tol) if tol > 0 else shapely.points(x, y)):
+        for i in self._tree.query(
+            shapely.points(x, y).buffer(tol) if tol > 0 else shapely.points(x, y)
+        ):
             r = self.regions[int(i)]
-            if r.contains(x, y, tol) and (best is None or min(r.v_max) < min(self.regions[best].v_max)):
+            if r.contains(x, y, tol) and (
+                best is None or min(r.v_max) < min(self.regions[best].v_max)
+            ):
                 best = r.index
         return best
 
@@ -177,7 +183,9 @@ class Floor:
         if len(xy) == 0:
             return out
         speed = np.array([min(r.v_max) for r in self.regions])
-        pts_idx, reg_idx = self._tree.query(shapely.points(xy), predicate="dwithin", distance=TOLERANCE)
+        pts_idx, reg_idx = self._tree.query(
+            shapely.points(xy), predicate="dwithin", distance=TOLERANCE
+        )
         best = np.full(len(xy), np.inf)
         for p, r in zip(pts_idx.tolist(), reg_idx.tolist(), strict=True):
             if speed[r] < best[p] and self.regions[r].contains(xy[p, 0], xy[p, 1]):
@@ -225,7 +233,7 @@ def _adjacency(regions: Sequence[Region], tree: STRtree) -> nx.Graph:
             if shared.length <= TOLERANCE:
                 continue
             if shared.geom_type != "LineString":
-                # Convex polygons share at most one segment; take the longest piece if noise split it.
+                # Convex polygons share at most one segment; take the longest if noise split it.
                 shared = max(getattr(shared, "geoms", [shared]), key=lambda s: s.length)
                 if shared.geom_type != "LineString":
                     continue

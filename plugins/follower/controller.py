@@ -22,7 +22,14 @@ from fleet.plugins import Command, Controller, ControllerContext, ControlStatus,
 if TYPE_CHECKING:
     from fleet.paths import PathPlanner, Reference
 
-__all__ = ["PathFollower", "REST_SPEED", "FEEDBACK_DEADBAND", "REPLAN_ERROR", "PLAN_HORIZON"]
+__all__ = [
+    "PathFollower",
+    "REST_SPEED",
+    "FEEDBACK_DEADBAND",
+    "REPLAN_ERROR",
+    "PLAN_HORIZON",
+    "PLAN_SAMPLE",
+]
 
 #: Per-axis speed (m/s) below which the robot counts as at rest (rounding, not motion).
 REST_SPEED = 1e-9
@@ -32,6 +39,8 @@ FEEDBACK_DEADBAND = 1e-6
 REPLAN_ERROR = 1e-3
 #: How far ahead (s) the `Command.plan` reaches.
 PLAN_HORIZON = 5.0
+#: Spacing (s) of the `Command.plan` samples.
+PLAN_SAMPLE = 1.0
 
 
 class PathFollower(Controller):
@@ -58,7 +67,9 @@ class PathFollower(Controller):
     - **no path** (`NoPathError`): hold at rest with `ControlStatus.FALLBACK`, retrying only when
       the goal, the position or the cap changes.
 
-    `Command.plan` carries the next `PLAN_HORIZON` seconds of reference samples ``(t, x, y)``,
+    `Command.plan` carries the next `PLAN_HORIZON` seconds of reference samples ``(t, x, y)``
+    about every `PLAN_SAMPLE` seconds (sent on the ticks that fall on a sample; the others carry
+    no plan, meaning the previous one holds),
     or the predicted braking trajectory while braking. The follower ignores other robots.
 
     Parameters
@@ -87,6 +98,9 @@ class PathFollower(Controller):
                 f"of a position error removed per period; 0 turns the feedback off)"
             )
         self.gain = float(gain)
+        self._samples: tuple[list[float], ...] = ([], [], [], [])
+        self._plan_steps = 0
+        self._plan_stride = 1
         self._planners: dict[float, PathPlanner] = {}
         self._clear()
 
@@ -96,6 +110,11 @@ class PathFollower(Controller):
     def reset(self, context: ControllerContext) -> None:
         """Keep the context and forget any reference from a previous run."""
         super().reset(context)
+        dt = context.spec.period
+        self._plan_steps = math.ceil(PLAN_HORIZON / dt)
+        # About one plan sample per second: enough for neighbours and the replay, and cheap
+        # to send every tick.
+        self._plan_stride = max(1, round(PLAN_SAMPLE / dt))
         self._planners = {}
         self._clear()
 
@@ -109,63 +128,76 @@ class PathFollower(Controller):
     def compute(self, obs: Observation) -> Command:
         """The acceleration for this tick; see the class docstring for the behaviour."""
         spec = self.context.spec
-        p = np.array([obs.x, obs.y], dtype=float)
-        v = np.array([obs.vx, obs.vy], dtype=float)
         if obs.goal is None:
             self._clear()
-            return self._brake(obs, v, ControlStatus.IDLE)
+            return self._brake(obs, ControlStatus.IDLE)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
         cap = spec.v_max if obs.speed_cap is None else min(spec.v_max, float(obs.speed_cap))
         if cap <= REST_SPEED:
             self._ref = None
-            return self._brake(obs, v, ControlStatus.OK)
+            return self._brake(obs, ControlStatus.OK)
 
-        if self._ref is not None and (
-            goal != self._goal or cap < self._cap or self._off_track(obs, p)
-        ):
+        stale = goal != self._goal or cap < self._cap
+        if self._ref is not None and (stale or self._off_track(obs)):
             self._ref = None
         if self._ref is None:
-            if not _at_rest(v):
-                return self._brake(obs, v, ControlStatus.OK)
+            if max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
+                return self._brake(obs, ControlStatus.OK)
+            if obs.x == goal[0] and obs.y == goal[1]:
+                return Command(0.0, 0.0, ControlStatus.OK)  # already there: nothing to plan
             attempt = (goal, obs.x, obs.y, cap)
             if self._failed == attempt:
-                return self._brake(obs, v, ControlStatus.FALLBACK)
+                return self._brake(obs, ControlStatus.FALLBACK)
             try:
                 self._ref = self._planner(cap).reference(
                     start=(obs.x, obs.y), goal=goal, dt=spec.period, t0=obs.t
                 )
             except NoPathError:
                 self._failed = attempt
-                return self._brake(obs, v, ControlStatus.FALLBACK)
+                return self._brake(obs, ControlStatus.FALLBACK)
             self._goal, self._cap, self._failed = goal, cap, None
-        return self._track(obs, p, v, self._ref)
+            ref = self._ref
+            self._samples = (
+                ref.positions[:, 0].tolist(),
+                ref.positions[:, 1].tolist(),
+                ref.velocities[:, 0].tolist(),
+                ref.velocities[:, 1].tolist(),
+            )
+        return self._track(obs, self._ref)
 
-    def _track(self, obs: Observation, p: np.ndarray, v: np.ndarray, ref: Reference) -> Command:
+    def _track(self, obs: Observation, ref: Reference) -> Command:
+        # Plain floats on this path: it runs once per robot per tick, and numpy's per-call
+        # overhead on 2-vectors would dominate.
         dt, a_max = self.context.spec.period, self.context.spec.a_max
-        positions, velocities = ref.positions, ref.velocities
-        last = len(positions) - 1
+        xs, ys, vxs, vys = self._samples
+        last = len(xs) - 1
         k = ref.index(obs.t)
         nxt = min(k + 1, last)
-        target = velocities[nxt]
-        error = positions[nxt] - (p + dt * v)  # where p[k+1] lands versus where it should be
-        if np.max(np.abs(error)) > FEEDBACK_DEADBAND:
+        tx, ty = vxs[nxt], vys[nxt]
+        # Where p[k+1] lands versus where it should be.
+        ex = xs[nxt] - (obs.x + dt * obs.vx)
+        ey = ys[nxt] - (obs.y + dt * obs.vy)
+        if max(abs(ex), abs(ey)) > FEEDBACK_DEADBAND:
             # v[k+1] = v_ref[k+1] + gain*e/dt leaves (1 - gain)*e at the step after next.
-            target = target + (self.gain / dt) * error
-        box = np.abs(velocities[nxt])
-        v_next = np.clip(target, -box, box)
-        u = np.clip((v_next - v) / dt, -a_max, a_max)
-        stop = min(last, k + math.ceil(PLAN_HORIZON / dt))
-        plan = tuple(
-            (ref.t0 + i * dt, float(positions[i, 0]), float(positions[i, 1]))
-            for i in range(k, stop + 1)
-        )
-        return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan)
+            tx += self.gain / dt * ex
+            ty += self.gain / dt * ey
+        bx, by = abs(vxs[nxt]), abs(vys[nxt])
+        ux = _clip((_clip(tx, bx) - obs.vx) / dt, a_max)
+        uy = _clip((_clip(ty, by) - obs.vy) / dt, a_max)
+        stride = self._plan_stride
+        if k % stride:
+            # The plan is sent about once per PLAN_SAMPLE; between, the last one still holds.
+            return Command(ux, uy, ControlStatus.OK)
+        stop = min(last, k + self._plan_steps)
+        plan = tuple((ref.t0 + i * dt, xs[i], ys[i]) for i in range(k, stop + 1, stride))
+        return Command(ux, uy, ControlStatus.OK, plan)
 
-    def _brake(self, obs: Observation, v: np.ndarray, status: ControlStatus) -> Command:
+    def _brake(self, obs: Observation, status: ControlStatus) -> Command:
         """Slow down along the current direction of travel at the full per-axis bound."""
         dt, a_max = self.context.spec.period, self.context.spec.a_max
-        if not np.any(v):
+        if obs.vx == 0.0 and obs.vy == 0.0:
             return Command(0.0, 0.0, status)
+        v = np.array([obs.vx, obs.vy])
         v_next = _braked(v, a_max * dt)
         u = np.clip((v_next - v) / dt, -a_max, a_max)
         # The predicted stop, so neighbours and the replay see where the robot will halt.
@@ -177,10 +209,11 @@ class PathFollower(Controller):
         return Command(float(u[0]), float(u[1]), status, tuple(plan))
 
     # -- helpers --------------------------------------------------------------------------------
-    def _off_track(self, obs: Observation, p: np.ndarray) -> bool:
+    def _off_track(self, obs: Observation) -> bool:
         assert self._ref is not None
         k = self._ref.index(obs.t)
-        return bool(np.max(np.abs(self._ref.positions[k] - p)) > REPLAN_ERROR)
+        xs, ys = self._samples[0], self._samples[1]
+        return max(abs(xs[k] - obs.x), abs(ys[k] - obs.y)) > REPLAN_ERROR
 
     def _planner(self, cap: float) -> PathPlanner:
         """The context's planner, or one for a robot capped at `cap` m/s (built once per cap)."""
@@ -194,8 +227,8 @@ class PathFollower(Controller):
         return self._planners[cap]
 
 
-def _at_rest(v: np.ndarray) -> bool:
-    return bool(np.max(np.abs(v)) <= REST_SPEED)
+def _clip(value: float, bound: float) -> float:
+    return bound if value > bound else -bound if value < -bound else value
 
 
 def _braked(v: np.ndarray, dv: float) -> np.ndarray:

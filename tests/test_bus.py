@@ -1,0 +1,691 @@
+"""The bus: wire schema, address checks, and exchange/agent round trips over real ZeroMQ sockets."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import multiprocessing
+import random
+import socket
+import threading
+
+import pytest
+import zmq
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fleet.bus import (
+    SCHEMA_VERSION,
+    AddressError,
+    AgentHost,
+    Exchange,
+    MessageKind,
+    braking_command,
+    command_from_wire,
+    command_to_wire,
+    decode,
+    encode,
+    observation_from_wire,
+    observation_to_wire,
+    parse_address,
+)
+from fleet.errors import FleetError, MessageError
+from fleet.plugins import (
+    Command,
+    Controller,
+    ControllerContext,
+    ControlStatus,
+    Neighbour,
+    Observation,
+    RobotSpec,
+)
+
+# --- test plugins and helpers --------------------------------------------------------------------
+
+
+class Echo(Controller):
+    """Answers ``ax = -vx, ay = tick`` so a test can tell which observation a command answers."""
+
+    def compute(self, obs: Observation) -> Command:
+        return Command(-obs.vx, float(obs.tick), ControlStatus.OK, ((obs.t, obs.x, obs.y),))
+
+
+class Exploding(Controller):
+    def compute(self, obs: Observation) -> Command:
+        raise RuntimeError(f"boom at tick {obs.tick}")
+
+
+class ReturnsNaN(Controller):
+    def compute(self, obs: Observation) -> Command:
+        return Command(math.nan, 0.0)
+
+
+def with_spec(controller: Controller, spec: RobotSpec) -> Controller:
+    # Braking needs only the spec; the floor and planner play no part in these tests.
+    controller.reset(ControllerContext("r", spec, floor=None, planner=None))  # type: ignore[arg-type]
+    return controller
+
+
+def observation(robot: str, tick: int, vx: float = 0.25, **kw) -> Observation:
+    return Observation(robot, tick, tick * 0.25, 1.0 + tick, -2.0, vx, -0.5, **kw)
+
+
+def expected(obs: Observation) -> Command:
+    return Command(-obs.vx, float(obs.tick), ControlStatus.OK, ((obs.t, obs.x, obs.y),))
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_rounds(exchange: Exchange, robots: list[str], rounds: int, seed: int = 7) -> None:
+    """Drive `rounds` ticks, each with a random subset of robots due, and check every answer."""
+    rng = random.Random(seed)
+    for tick in range(1, rounds + 1):
+        due = [r for r in robots if rng.random() < 0.8] or robots[:1]
+        obs = [observation(r, tick, vx=rng.uniform(-1, 1)) for r in due]
+        rng.shuffle(obs)  # the result must not depend on the order observations come in
+        result = exchange.round(tick, tick * 0.25, obs)
+        assert list(result) == sorted(due)
+        assert result == {o.robot: expected(o) for o in obs}
+
+
+def serve_echo(address: str, robots: list[str], name: str) -> None:
+    """Target of the agent process in the tcp test (must be importable by a spawned child)."""
+    with AgentHost(address, {r: Echo() for r in robots}, name=name) as host:
+        host.serve(idle_timeout_s=60)
+
+
+# --- schema: round trips -------------------------------------------------------------------------
+
+OBS_FULL = Observation(
+    "r1",
+    7,
+    1.75,
+    3.5,
+    -2.25,
+    0.5,
+    -0.125,
+    goal=(10.0, 4.0),
+    job="job-3",
+    speed_cap=0.3,
+    neighbours=(Neighbour("r2", 4.0, -2.0, 0.1, 0.0), Neighbour("r3", 1.0, 1.0, 0.0, -0.2)),
+)
+OBS_IDLE = Observation("r2", 7, 1.75, 0.0, 0.0, 0.0, 0.0)  # goal None, no job, no neighbours
+CMD_PLAN = Command(0.5, -0.25, ControlStatus.FALLBACK, ((2.0, 3.5, -2.0), (2.25, 3.6, -1.9)))
+
+BODIES = {
+    MessageKind.HELLO: {"robots": ["r1", "r2"]},
+    MessageKind.WELCOME: {"accepted": ["r1"], "rejected": {"r2": "already hosted by agent 'a'"}},
+    MessageKind.OBSERVE: {"t": 1.75, "observations": [OBS_FULL, OBS_IDLE]},
+    MessageKind.ACT: {"commands": {"r1": CMD_PLAN, "r2": Command(0.0, 0.0, ControlStatus.IDLE)}},
+    MessageKind.BYE: {"reason": "run finished"},
+}
+
+
+@pytest.mark.parametrize("kind", list(MessageKind))
+def test_every_message_kind_round_trips(kind):
+    raw = encode(kind, "agent-1", 7, BODIES[kind])
+    msg = decode(raw)
+    assert (msg.kind, msg.sender, msg.tick, msg.version) == (kind, "agent-1", 7, SCHEMA_VERSION)
+    assert msg.body == BODIES[kind]
+    # Compact JSON, UTF-8, one object, the kind's value on the wire.
+    text = raw.decode("utf-8")
+    assert ", " not in text and ": " not in text
+    assert json.loads(text)["kind"] == kind.value
+
+
+def test_observation_round_trips_with_neighbours_plan_and_none_goal():
+    for obs in (OBS_FULL, OBS_IDLE):
+        wire = observation_to_wire(obs)
+        assert observation_from_wire(json.loads(json.dumps(wire))) == obs
+    assert observation_to_wire(OBS_IDLE)["goal"] is None
+    assert observation_to_wire(OBS_FULL)["neighbours"][0] == ["r2", 4.0, -2.0, 0.1, 0.0]
+
+
+@pytest.mark.parametrize("status", list(ControlStatus))
+def test_command_round_trips_with_every_status(status):
+    cmd = Command(CMD_PLAN.ax, CMD_PLAN.ay, status, CMD_PLAN.plan)
+    assert command_from_wire(json.loads(json.dumps(command_to_wire(cmd)))) == cmd
+    assert command_to_wire(cmd)["status"] == status.value
+
+
+def test_encode_accepts_wire_dicts_as_well_as_objects():
+    body = {"t": 1.75, "observations": [observation_to_wire(OBS_FULL)]}
+    assert decode(encode(MessageKind.OBSERVE, "x", 7, body)).body["observations"] == [OBS_FULL]
+    body = {"commands": {"r1": command_to_wire(CMD_PLAN)}}
+    assert decode(encode(MessageKind.ACT, "x", 7, body)).body["commands"] == {"r1": CMD_PLAN}
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+names = st.text(min_size=1, max_size=12)
+neighbours = st.builds(Neighbour, names, finite, finite, finite, finite)
+observations = st.builds(
+    Observation,
+    names,
+    st.integers(0, 2**53),
+    finite,
+    finite,
+    finite,
+    finite,
+    finite,
+    st.none() | st.tuples(finite, finite),
+    st.none() | names,
+    st.none() | st.floats(0, 1e6),
+    st.lists(neighbours, max_size=3).map(tuple),
+)
+commands = st.builds(
+    Command,
+    finite,
+    finite,
+    st.sampled_from(ControlStatus),
+    st.lists(st.tuples(finite, finite, finite), max_size=4).map(tuple),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(obs=observations, cmd=commands, tick=st.integers(0, 2**40))
+def test_any_finite_observation_and_command_survive_the_wire_exactly(obs, cmd, tick):
+    msg = decode(encode(MessageKind.OBSERVE, "exchange", tick, {"t": 0.0, "observations": [obs]}))
+    assert msg.body["observations"] == [obs]
+    msg = decode(encode(MessageKind.ACT, "a", tick, {"commands": {obs.robot: cmd}}))
+    assert msg.body["commands"] == {obs.robot: cmd}
+
+
+# --- schema: rejection ---------------------------------------------------------------------------
+
+
+def envelope(**over) -> dict:
+    env = {"version": 1, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
+    env.update(over)
+    return env
+
+
+def observe_with(**fields) -> dict:
+    obs = observation_to_wire(OBS_FULL)
+    obs.update(fields)
+    return envelope(kind="observe", body={"t": 1.0, "observations": [obs]})
+
+
+def act_with(**fields) -> dict:
+    cmd = command_to_wire(CMD_PLAN)
+    cmd.update(fields)
+    return envelope(kind="act", body={"commands": {"r1": cmd}})
+
+
+def raw(obj: object) -> bytes:
+    return json.dumps(obj).encode()
+
+
+MALFORMED = [
+    (b"\xff\xfe garbage", "is not UTF-8"),
+    (b"{not json", "is not valid JSON"),
+    (b'{"version": 1} trailing', "is not valid JSON"),
+    (raw([1, 2, 3]), "must be a JSON object"),
+    (raw(envelope(version=2)), "version = 2: unsupported schema version"),
+    (raw(envelope(version="1")), "version = '1'"),
+    (raw({"kind": "bye"}), "version = None"),
+    (raw(envelope(kind="shout")), "kind = 'shout': must be one of 'hello'"),
+    (raw(envelope(sender="")), "sender = '': must be a non-empty string"),
+    (raw(envelope(tick=-1)), "tick = -1: must be an integer >= 0"),
+    (raw(envelope(tick=True)), "tick = True"),
+    (raw(envelope(tick=1.5)), "tick = 1.5"),
+    (raw(envelope(extra=1)), "unexpected field(s) ['extra']"),
+    (raw({k: v for k, v in envelope().items() if k != "body"}), "missing field(s) body"),
+    (raw(envelope(body={"reason": "x", "more": 1})), "BYE message from 'a': body: unexpected"),
+    (raw(envelope(body=[])), "body = []: must be a JSON object"),
+    (raw(envelope(kind="hello", body={"robots": ["r1", "r1"]})), "must be unique"),
+    (raw(envelope(kind="hello", body={"robots": ["r1", 7]})), "robots = 7"),
+    (raw(observe_with(vx="fast")), "observations[0].vx = 'fast': must be a finite number"),
+    (raw(observe_with(x=True)), "observations[0].x = True: must be a finite number"),
+    (
+        raw(observe_with(y=12345.5)).replace(b"12345.5", b"1e999"),  # overflows to inf
+        "observations[0].y = inf: must be a finite number",
+    ),
+    (raw(observe_with(goal=[1.0])), "observations[0].goal = [1.0]: must be null or [x, y]"),
+    (raw(observe_with(goal=[1.0, None])), "observations[0].goal[1] = None"),
+    (raw(observe_with(robot="")), "observations[0].robot = ''"),
+    (raw(observe_with(tick=-3)), "observations[0].tick = -3"),
+    (raw(observe_with(speed_cap=-1.0)), "speed_cap = -1.0: must be null or >= 0"),
+    (raw(observe_with(neighbours=[["r2", 1.0, 2.0]])), "neighbours[0] = ['r2', 1.0, 2.0]"),
+    (raw(observe_with(neighbours=[["r2", 1, 2, "a", 4]])), "neighbours[0] = 'a'"),
+    (raw(observe_with(colour="red")), "unexpected field(s) ['colour']"),
+    (raw(act_with(status="panic")), "status = 'panic': must be one of 'ok'"),
+    (raw(act_with(ax=None)), "commands['r1'].ax = None: must be a finite number"),
+    (raw(act_with(plan=[[0.0, 1.0]])), "plan[0] = [0.0, 1.0]: must be a [t, x, y] triple"),
+    (raw(act_with(plan=[[0.0, 1.0, 12345.5]])).replace(b"12345.5", b"-1e400"), "plan[0] = -inf"),
+    (raw(act_with(plan={"t": 1})), "plan = {'t': 1}: must be an array"),
+]
+
+
+@pytest.mark.parametrize(("frame", "says"), MALFORMED, ids=[m[1][:40] for m in MALFORMED])
+def test_malformed_messages_are_rejected_saying_what_is_wrong(frame, says):
+    with pytest.raises(MessageError) as info:
+        decode(frame)
+    assert says in str(info.value)
+    assert isinstance(info.value, FleetError)
+
+
+@pytest.mark.parametrize("constant", ["NaN", "Infinity", "-Infinity"])
+def test_json_constants_for_non_finite_numbers_are_rejected(constant):
+    text = json.dumps(observe_with(x=0.0)).replace('"x": 0.0', f'"x": {constant}')
+    with pytest.raises(MessageError, match=f"{constant} is not a finite number"):
+        decode(text.encode())
+
+
+def test_long_bad_values_are_quoted_truncated():
+    with pytest.raises(MessageError) as info:
+        decode(raw(observe_with(job=["x" * 5000])))
+    text = str(info.value)
+    assert "observations[0].job = ['xxxx" in text and "..." in text
+    assert len(text) < 400
+
+
+def test_unexpected_kind_is_rejected_naming_what_was_expected():
+    frame = encode(MessageKind.HELLO, "a", 0, {"robots": []})
+    with pytest.raises(MessageError, match="unexpected kind HELLO; expected ACT, BYE"):
+        decode(frame, expect=(MessageKind.ACT, MessageKind.BYE))
+
+
+def test_encode_refuses_non_finite_values_and_names_where():
+    bad = Observation("r1", 1, 0.0, math.inf, 0.0, 0.0, 0.0)
+    with pytest.raises(MessageError, match=r"body.observations\[0\].x = inf"):
+        encode(MessageKind.OBSERVE, "exchange", 1, {"t": 0.0, "observations": [bad]})
+    with pytest.raises(MessageError, match="robot 'r7'.*command.ay = nan"):
+        encode(MessageKind.ACT, "a", 1, {"commands": {"r7": Command(0.0, math.nan)}})
+    with pytest.raises(MessageError, match="tick = -1"):
+        encode(MessageKind.BYE, "a", -1, {"reason": ""})
+
+
+def test_command_to_wire_checks_what_plugins_return():
+    with pytest.raises(MessageError, match="must be a fleet.plugins.Command"):
+        command_to_wire((0.0, 0.0))  # type: ignore[arg-type]
+    with pytest.raises(MessageError, match="command.status = 'ok'"):
+        command_to_wire(Command(0.0, 0.0, "ok"))  # type: ignore[arg-type]
+    with pytest.raises(MessageError, match=r"command.plan\[1\] = \(1.0, 2.0\)"):
+        command_to_wire(Command(0.0, 0.0, plan=((0.0, 1.0, 2.0), (1.0, 2.0))))  # type: ignore[arg-type]
+
+
+# --- addresses -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("address", "bind"),
+    [
+        ("inproc://fleet-1", False),
+        ("ipc:///tmp/fleet.sock", False),
+        ("tcp://127.0.0.1:5555", False),
+        ("tcp://[::1]:5555", False),
+        ("tcp://robot-host.local:5555", False),
+        ("tcp://*:5555", True),
+        ("tcp://127.0.0.1:*", True),
+    ],
+)
+def test_good_addresses_parse(address, bind):
+    assert str(parse_address(address, bind=bind)) == address
+
+
+@pytest.mark.parametrize(
+    ("address", "says"),
+    [
+        ("localhost:5555", "must look like '<transport>://<target>'"),
+        ("inproc://", "must look like"),
+        ("udp://127.0.0.1:5555", "transport 'udp' is not supported"),
+        ("tcp://127.0.0.1", "tcp needs '<host>:<port>'"),
+        ("tcp://127.0.0.1:70000", "tcp port '70000' must be an integer in 1..65535"),
+        ("tcp://127.0.0.1:http", "tcp port 'http'"),
+        ("tcp://bad host:1", "must not contain whitespace"),
+        ("tcp://127.0.0.1:*", "only allowed when binding"),
+        ("tcp://*:5555", "only allowed when binding"),
+        ("ipc://" + "/x" * 60, "at most 107"),
+        ("ipc://*", "explicit socket path"),
+    ],
+)
+def test_bad_addresses_are_refused_saying_what_is_allowed(address, says):
+    with pytest.raises(AddressError) as info:
+        parse_address(address)
+    assert says in str(info.value)
+    assert repr(address) in str(info.value) and "inproc://<name>" in str(info.value)
+    assert isinstance(info.value, ValueError) and isinstance(info.value, MessageError)
+
+
+def test_binding_an_address_in_use_is_a_clear_error():
+    with Exchange() as first, pytest.raises(AddressError, match="cannot bind the bus to"):
+        Exchange(first.address)
+
+
+# --- exchange and agents in one process ----------------------------------------------------------
+
+
+def local_fleet(exchange: Exchange, split: dict[str, list[str]]) -> dict[str, AgentHost]:
+    hosts = {}
+    for name, robots in split.items():
+        host = AgentHost(exchange.address, {r: Echo() for r in robots}, name=name)
+        exchange.add_local(host)
+        hosts[name] = host
+    return hosts
+
+
+def test_two_local_hosts_over_inproc_answer_100_rounds_in_robot_order():
+    robots = [f"r{i}" for i in range(7)]
+    with Exchange() as ex:
+        assert ex.address.startswith("inproc://fleet-")
+        local_fleet(ex, {"a": robots[::2], "b": robots[1::2]})
+        ex.wait_for_agents(robots)
+        assert ex.agents == {"a": frozenset(robots[::2]), "b": frozenset(robots[1::2])}
+        run_rounds(ex, robots, 100)
+        stats = dict(ex.stats)
+    assert stats["rounds"] == 100
+    for counter in (
+        "messages_rejected",
+        "stale",
+        "commands_missing",
+        "timeouts",
+        "robots_rejected",
+    ):
+        assert stats[counter] == 0, counter
+
+
+def test_a_robot_nobody_hosts_is_simply_absent():
+    with Exchange() as ex:
+        local_fleet(ex, {"a": ["r1"]})
+        ex.wait_for_agents(["r1"])
+        result = ex.round(1, 0.25, [observation("r1", 1), observation("r2", 1)])
+        assert list(result) == ["r1"]
+        assert ex.stats["commands_missing"] == 1 and ex.stats["timeouts"] == 0
+
+
+def test_a_robot_claimed_twice_stays_with_its_first_host():
+    with Exchange() as ex:
+        first, second = local_fleet(ex, {"first": ["r1"], "second": ["r1", "r2"]}).values()
+        ex.wait_for_agents(["r1", "r2"])
+        result = ex.round(1, 0.25, [observation("r1", 1), observation("r2", 1)])
+        assert result == {
+            "r1": expected(observation("r1", 1)),
+            "r2": expected(observation("r2", 1)),
+        }
+        assert ex.agents == {"first": {"r1"}, "second": {"r2"}}
+        assert second.accepted == {"r2"}
+        assert second.rejected == {"r1": "already hosted by agent 'first'"}
+        assert first.rejected == {}
+        assert ex.stats["robots_rejected"] == 1
+
+
+def test_a_controller_that_raises_gets_its_robot_braking_with_error_status(caplog):
+    spec = RobotSpec(a_max=0.5, period=0.25)
+    controllers = {
+        "hot": with_spec(Exploding(), spec),
+        "nospec": Exploding(),
+        "nan": with_spec(ReturnsNaN(), spec),
+        "ok": Echo(),
+    }
+    with Exchange() as ex:
+        ex.add_local(AgentHost(ex.address, controllers, name="h"))
+        ex.wait_for_agents(controllers)
+        caplog.set_level(logging.WARNING, logger="fleet.bus")
+        for tick in (1, 2):
+            obs = [
+                Observation("hot", tick, 0.0, 0.0, 0.0, 0.05, -1.0),
+                Observation("nospec", tick, 0.0, 0.0, 0.0, 0.05, -1.0),
+                Observation("nan", tick, 0.0, 0.0, 0.0, -1.0, 0.0),
+                observation("ok", tick),
+            ]
+            result = ex.round(tick, 0.0, obs)
+            # |v|/dt = 0.2 is within a_max and cancels vx exactly; vy/dt = -4 is clipped to 0.5.
+            assert result["hot"] == Command(-0.2, 0.5, ControlStatus.ERROR)
+            assert result["nospec"] == Command(0.0, 0.0, ControlStatus.ERROR)
+            assert result["nan"] == Command(0.5, 0.0, ControlStatus.ERROR)
+            assert result["ok"] == expected(observation("ok", tick))
+    lines = [r.getMessage() for r in caplog.records]
+    assert any("robot hot" in m and "RuntimeError: boom at tick 1" in m for m in lines)
+    assert any("robot nan" in m and "command.ax = nan" in m for m in lines)
+    # The traceback is logged once per robot, not every tick.
+    assert sum(1 for r in caplog.records if r.exc_info and "robot hot" in r.getMessage()) == 1
+
+
+def test_braking_command_never_exceeds_a_max():
+    brake = with_spec(Exploding(), RobotSpec(a_max=0.5, period=0.25))
+    for v in (-10.0, -0.1, 0.0, 0.1, 10.0):
+        cmd = braking_command(brake, Observation("r", 0, 0.0, 0.0, 0.0, v, v))
+        assert abs(cmd.ax) <= 0.5 and cmd.ax * v <= 0 and cmd.status is ControlStatus.ERROR
+
+
+def test_an_agent_that_says_bye_loses_its_robots_without_stalling_rounds():
+    with Exchange(timeout_s=30) as ex:
+        hosts = local_fleet(ex, {"a": ["r1"], "b": ["r2"]})
+        ex.wait_for_agents(["r1", "r2"])
+        hosts["b"].close()
+        result = ex.round(1, 0.25, [observation("r1", 1), observation("r2", 1)])
+        assert list(result) == ["r1"]
+        assert ex.agents == {"a": {"r1"}}
+        assert ex.stats["commands_missing"] == 1 and ex.stats["timeouts"] == 0
+
+
+def test_rounds_must_advance_and_observe_each_robot_once():
+    with Exchange() as ex:
+        local_fleet(ex, {"a": ["r1"]})
+        ex.wait_for_agents(["r1"])
+        ex.round(5, 1.25, [observation("r1", 5)])
+        with pytest.raises(ValueError, match="round tick = 5: must be an integer > 5"):
+            ex.round(5, 1.25, [observation("r1", 5)])
+        with pytest.raises(ValueError, match="two observations of robot 'r1'"):
+            ex.round(6, 1.5, [observation("r1", 6), observation("r1", 6)])
+
+
+def test_wait_for_agents_times_out_naming_the_robots_without_host():
+    with Exchange() as ex:
+        local_fleet(ex, {"a": ["r1"]})
+        with pytest.raises(MessageError, match=r"no agent hosts robots \['r7'\].*\['a'\]"):
+            ex.wait_for_agents(["r1", "r7"], timeout_s=0.05)
+
+
+def test_local_hosts_must_share_the_exchange_context_and_address():
+    other = zmq.Context()
+    try:
+        with Exchange() as ex:
+            with pytest.raises(ValueError, match="another zmq.Context"):
+                ex.add_local(AgentHost(ex.address, {}, context=other))
+            with Exchange() as ex2, pytest.raises(ValueError, match="not to this exchange"):
+                ex.add_local(AgentHost(ex2.address, {}))
+    finally:
+        other.destroy(linger=0)
+
+
+# --- misbehaving peers ---------------------------------------------------------------------------
+
+
+def test_injected_garbage_is_dropped_and_counted_while_rounds_go_on():
+    robots = ["r0", "r1", "r2", "r3"]
+    ctx = zmq.Context.instance()
+    with Exchange() as ex:
+        local_fleet(ex, {"a": robots[:2], "b": robots[2:]})
+        ex.wait_for_agents(robots)
+        intruder = ctx.socket(zmq.DEALER)
+        stranger = ctx.socket(zmq.DEALER)
+        intruder.connect(ex.address)
+        stranger.connect(ex.address)
+        try:
+            run_rounds(ex, robots, 3)
+            # An agent claiming a robot already hosted and one not in the run.
+            intruder.send(encode(MessageKind.HELLO, "intruder", 0, {"robots": ["r0", "ghost"]}))
+            intruder.send(b"\x00garbage")
+            intruder.send_multipart([b"two", b"frames"])
+            intruder.send(raw(envelope(version=99)))
+            act = {"commands": {"r0": Command(9.0, 9.0)}}
+            intruder.send(encode(MessageKind.ACT, "intruder", 2, act))  # stale: tick 2 is over
+            intruder.send(encode(MessageKind.ACT, "intruder", 4, act))  # current, but not asked
+            intruder.send(encode(MessageKind.OBSERVE, "intruder", 4, BODIES[MessageKind.OBSERVE]))
+            intruder.send(encode(MessageKind.ACT, "impostor", 4, act))  # not the name it gave
+            stranger.send(encode(MessageKind.ACT, "stranger", 4, act))  # never said HELLO
+            result = ex.round(4, 1.0, [observation(r, 4) for r in robots])
+            assert result == {r: expected(observation(r, 4)) for r in robots}
+            welcome = decode(intruder.recv(), expect=(MessageKind.WELCOME,))
+        finally:
+            intruder.close(linger=0)
+            stranger.close(linger=0)
+        stats = dict(ex.stats)
+    assert welcome.body["accepted"] == []
+    assert welcome.body["rejected"] == {
+        "r0": "already hosted by agent 'a'",
+        "ghost": "unknown robot: not part of this run",
+    }
+    assert stats["robots_rejected"] == 2
+    assert stats["stale"] == 1
+    # garbage, two frames, version 99, unasked ACT, OBSERVE to the engine, impostor, stranger
+    assert stats["messages_rejected"] == 7
+    assert stats["commands_missing"] == 0 and stats["timeouts"] == 0
+
+
+def test_commands_for_robots_not_asked_are_rejected_and_silent_robots_missing():
+    ctx = zmq.Context.instance()
+    with Exchange(timeout_s=30) as ex:
+        ready = threading.Event()
+
+        def sloppy_agent() -> None:
+            sock = ctx.socket(zmq.DEALER)
+            sock.connect(ex.address)
+            sock.send(encode(MessageKind.HELLO, "sloppy", 0, {"robots": ["s1", "s2"]}))
+            decode(sock.recv(), expect=(MessageKind.WELCOME,))
+            ready.set()
+            msg = decode(sock.recv(), expect=(MessageKind.OBSERVE,))
+            # Answers s1, forgets s2, and invents a robot.
+            cmds = {"s1": Command(1.0, 1.0), "zz": Command(2.0, 2.0)}
+            sock.send(encode(MessageKind.ACT, "sloppy", msg.tick, {"commands": cmds}))
+            decode(sock.recv(), expect=(MessageKind.BYE,))
+            sock.close(linger=0)
+
+        worker = threading.Thread(target=sloppy_agent)
+        worker.start()
+        ex.wait_for_agents(["s1", "s2"])
+        result = ex.round(1, 0.25, [observation("s1", 1), observation("s2", 1)])
+        assert result == {"s1": Command(1.0, 1.0)}
+        assert ex.stats["commands_rejected"] == 1
+        assert ex.stats["commands_missing"] == 1 and ex.stats["timeouts"] == 0
+    worker.join(timeout=30)
+    assert ready.is_set() and not worker.is_alive()
+
+
+def test_an_agent_that_does_not_answer_in_time_costs_only_its_robots():
+    ctx = zmq.Context.instance()
+    with Exchange(timeout_s=0.2) as ex:
+        local_fleet(ex, {"a": ["r1"]})
+        silent = ctx.socket(zmq.DEALER)
+        silent.connect(ex.address)
+        try:
+            silent.send(encode(MessageKind.HELLO, "silent", 0, {"robots": ["r2"]}))
+            ex.wait_for_agents(["r1", "r2"])
+            result = ex.round(1, 0.25, [observation("r1", 1), observation("r2", 1)])
+            assert list(result) == ["r1"]
+            assert ex.stats["timeouts"] == 1 and ex.stats["commands_missing"] == 1
+            # Its late answer arrives during the next round and is dropped as stale.
+            silent.send(encode(MessageKind.ACT, "silent", 1, {"commands": {"r2": Command(0, 0)}}))
+            result = ex.round(2, 0.5, [observation("r1", 2)])
+            assert list(result) == ["r1"]
+            assert ex.stats["stale"] == 1
+        finally:
+            silent.close(linger=0)
+
+
+def test_the_agent_drops_bad_messages_and_keeps_serving():
+    ctx = zmq.Context.instance()
+    engine = ctx.socket(zmq.ROUTER)
+    address = "inproc://fake-engine"
+    engine.bind(address)
+    host = AgentHost(address, {"r1": Echo()}, name="h")
+    try:
+        peer, hello = engine.recv_multipart()
+        assert decode(hello).body == {"robots": ["r1"]}
+
+        def deliver(frame: bytes) -> None:
+            engine.send_multipart([peer, frame])
+            assert host.pump(timeout_ms=5000)
+
+        def observe(sender: str, tick: int, robots: list[str]) -> bytes:
+            obs = [observation(r, tick) for r in robots]
+            return encode(MessageKind.OBSERVE, sender, tick, {"t": 0.0, "observations": obs})
+
+        deliver(b"[1, 2")  # garbage
+        deliver(observe("engine", 1, ["r1"]))  # before WELCOME
+        welcome = {"accepted": ["r1"], "rejected": {}}
+        deliver(encode(MessageKind.WELCOME, "engine", 0, welcome))
+        deliver(encode(MessageKind.ACT, "engine", 1, {"commands": {}}))  # wrong kind for agents
+        deliver(observe("someone-else", 2, ["r1"]))  # unknown sender
+        deliver(raw(envelope(kind="observe", version=0)))  # wrong version
+        assert host.stats["messages_rejected"] == 5
+        deliver(observe("engine", 3, ["r1", "r9"]))  # r9 is not ours
+        ident, answer = engine.recv_multipart()
+        act = decode(answer, expect=(MessageKind.ACT,))
+        assert (ident, act.tick, act.body["commands"]) == (
+            peer,
+            3,
+            {"r1": expected(observation("r1", 3))},
+        )
+        assert host.stats["unknown_robots"] == 1
+        deliver(observe("engine", 2, ["r1"]))  # stale: tick 3 was answered
+        assert host.stats["stale"] == 1
+        assert not engine.poll(50)  # nothing was answered for the stale tick
+        deliver(encode(MessageKind.BYE, "engine", 3, {"reason": "done"}))
+        assert host.finished
+        host.serve()  # returns at once: the exchange already said BYE
+    finally:
+        host.close()
+        engine.close(linger=0)
+    assert host.stats["messages_rejected"] == 5 and host.stats["observations"] == 1
+
+
+# --- across threads and processes ----------------------------------------------------------------
+
+
+def test_a_host_in_another_thread_over_ipc(tmp_path):
+    robots = ["r1", "r2", "r3"]
+    hosts: list[AgentHost] = []
+    with Exchange(f"ipc://{tmp_path}/bus.sock") as ex:
+
+        def agent() -> None:
+            # zmq sockets belong to one thread: the host is made where it is served.
+            with AgentHost(ex.address, {r: Echo() for r in robots}, name="ipc-agent") as host:
+                hosts.append(host)
+                host.serve(idle_timeout_s=30)
+
+        worker = threading.Thread(target=agent)
+        worker.start()
+        ex.wait_for_agents(robots)
+        run_rounds(ex, robots, 100)
+        assert ex.stats["commands_missing"] == 0 and ex.stats["messages_rejected"] == 0
+    worker.join(timeout=30)
+    assert not worker.is_alive()
+    assert hosts[0].finished and hosts[0].stats["observations"] > 0
+
+
+def test_a_host_in_another_process_over_tcp():
+    robots = ["r1", "r2", "r3", "r4"]
+    port = free_tcp_port()
+    spawn = multiprocessing.get_context("spawn")
+    with Exchange(f"tcp://127.0.0.1:{port}", timeout_s=60) as ex:
+        assert ex.address == f"tcp://127.0.0.1:{port}"
+        procs = [
+            spawn.Process(target=serve_echo, args=(ex.address, robots[:2], "p1")),
+            spawn.Process(target=serve_echo, args=(ex.address, robots[2:], "p2")),
+        ]
+        for p in procs:
+            p.start()
+        try:
+            ex.wait_for_agents(robots)
+            run_rounds(ex, robots, 100)
+            assert ex.stats["commands_missing"] == 0 and ex.stats["messages_rejected"] == 0
+        finally:
+            ex.close()  # BYE ends the agents' serve()
+            for p in procs:
+                p.join(timeout=60)
+                if p.is_alive():
+                    p.kill()
+    assert [p.exitcode for p in procs] == [0, 0]
+
+
+def test_binding_tcp_port_star_reports_the_real_port():
+    with Exchange("tcp://127.0.0.1:*") as ex:
+        host, port = ex.address.removeprefix("tcp://").rsplit(":", 1)
+        assert host == "127.0.0.1" and 1 <= int(port) <= 65535
