@@ -32,7 +32,11 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 
 @dataclass(frozen=True)
 class RobotsConfig:
-    """The fleet: how many robots, where they start, and their physical limits."""
+    """One group of identical robots: how many, where they start, their limits and period.
+
+    A scenario's fleet is one or more groups (``[robots]`` or ``[[robots]]`` in the file), so
+    a fleet can mix robots with different speeds, accelerations and control periods.
+    """
 
     count: int = 4
     start: tuple[str, ...] = ()  # station names, cycled; empty -> the floor's depots
@@ -78,7 +82,7 @@ class Scenario:
     map: Path
     duration_s: float = 600.0
     seed: int = 1
-    robots: RobotsConfig = field(default_factory=RobotsConfig)
+    robots: tuple[RobotsConfig, ...] = (RobotsConfig(),)
     controller: PluginChoice = field(default_factory=lambda: PluginChoice("follower"))
     dispatcher: PluginChoice = field(default_factory=lambda: PluginChoice("greedy"))
     jobs: JobsConfig = field(default_factory=JobsConfig)
@@ -105,9 +109,16 @@ class Scenario:
                 raise ScenarioError(src, "--map", str(map), "no such map file")
             out = replace(out, map=path.resolve())
         if robots is not None:
-            out = replace(
-                out, robots=replace(out.robots, count=_positive_int(src, "--robots", robots))
-            )
+            count = _positive_int(src, "--robots", robots)
+            if len(out.robots) != 1:
+                raise ScenarioError(
+                    src,
+                    "--robots",
+                    robots,
+                    f"{out.source} defines {len(out.robots)} robot groups; set each group's "
+                    "count in the file",
+                )
+            out = replace(out, robots=(replace(out.robots[0], count=count),))
         if controller is not None:
             out = replace(out, controller=PluginChoice(controller))
         if dispatcher is not None:
@@ -151,17 +162,16 @@ def load_scenario(path: str | Path) -> Scenario:
     )
     sc.finish()
 
-    rb = root.table("robots")
-    robots = RobotsConfig(
-        count=_positive_int(src, "robots.count", rb.take("count", int, 4)),
-        start=tuple(rb.take_list("start", str, ())),
-        v_max=_positive(src, "robots.v_max", rb.take("v_max", (int, float), 1.0)),
-        a_max=_positive(src, "robots.a_max", rb.take("a_max", (int, float), 0.5)),
-        radius=_positive(src, "robots.radius", rb.take("radius", (int, float), 0.4)),
-        period_s=_positive(src, "robots.period_s", rb.take("period_s", (int, float), 0.25)),
-        return_home=rb.take("return_home", bool, True),
-    )
-    rb.finish()
+    groups = root.take("robots", (dict, list), {})
+    if isinstance(groups, dict):
+        robots = (_robots(_Table(src, "robots.", groups), src, "robots"),)
+    elif not groups:
+        raise ScenarioError(src, "robots", [], "needs at least one [[robots]] group")
+    else:
+        robots = tuple(
+            _robots(_Table(src, f"robots[{i}].", g), src, f"robots[{i}]")
+            for i, g in enumerate(groups)
+        )
 
     controller = _plugin(root, "controller", "follower")
     dispatcher = _plugin(root, "dispatcher", "greedy")
@@ -214,6 +224,20 @@ def load_scenario(path: str | Path) -> Scenario:
         arrival_tolerance_m=float(tol),
         sensing_radius_m=float(sensing),
     )
+
+
+def _robots(rb: _Table, src: str, where: str) -> RobotsConfig:
+    group = RobotsConfig(
+        count=_positive_int(src, f"{where}.count", rb.take("count", int, 4)),
+        start=tuple(rb.take_list("start", str, ())),
+        v_max=_positive(src, f"{where}.v_max", rb.take("v_max", (int, float), 1.0)),
+        a_max=_positive(src, f"{where}.a_max", rb.take("a_max", (int, float), 0.5)),
+        radius=_positive(src, f"{where}.radius", rb.take("radius", (int, float), 0.4)),
+        period_s=_positive(src, f"{where}.period_s", rb.take("period_s", (int, float), 0.25)),
+        return_home=rb.take("return_home", bool, True),
+    )
+    rb.finish()
+    return group
 
 
 def _plugin(root: _Table, key: str, default: str) -> PluginChoice:

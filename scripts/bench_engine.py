@@ -41,7 +41,7 @@ def main() -> None:
     )
     never = JobsConfig(mode="scripted", scripted=(ScriptedJob(1e12, floor.spec.stations[-1].name),))
     for n, load in [(n, load) for n in args.sizes for load in ("busy", "idle")]:
-        duration = max(10.0, args.steps * base.robots.period_s / n)
+        duration = max(10.0, args.steps * base.robots[0].period_s / n)
         busy = replace(base.jobs, rate_per_h=30.0 * n)
         jobs = busy if load == "busy" else never
         sc = replace(base.override(robots=n, duration=duration), jobs=jobs)

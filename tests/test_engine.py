@@ -112,12 +112,33 @@ def test_robot_steps_follow_each_period(scenario_file):
         assert len(tr.t) == 40  # ticks at 0, 0.25, ..., 9.75
 
 
+def test_groups_tick_at_their_own_periods(scenario_file):
+    sc = load_scenario(scenario_file)
+    fast = replace(sc.robots[0], count=2, period_s=0.25)
+    slow = replace(sc.robots[0], count=1, period_s=1.0, v_max=0.5, start=("north",))
+    # The slow robot waits nearest to "east", so the greedy dispatcher sends it there.
+    jobs = JobsConfig(mode="scripted", scripted=(ScriptedJob(0.0, "east"),))
+    world = World(replace(sc, robots=(fast, slow), duration_s=120.0, jobs=jobs))
+    result = world.run()
+    periods = {rid: r.spec.period for rid, r in world.robots.items()}
+    assert periods == {"r01": 0.25, "r02": 0.25, "r03": 1.0}
+    for rid, tr in world.recorder.trajectories.items():
+        assert len(tr.t) == round(120.0 / periods[rid])
+    # The slow group's robot never exceeds its own speed limit.
+    t, xy, v = world.recorder.trajectories["r03"].arrays()
+    assert world.recorder.trajectories["r03"].distance() > 10.0
+    assert 0.3 < abs(v).max() <= 0.5 + 1e-9
+    assert result.summary["violations"]["obstacle"] == 0
+    assert result.summary["violations"]["speed_zone"] == 0
+    assert world.planner_for(world.robots["r03"].spec) is not world.planner
+
+
 def test_unknown_station_in_scenario_is_a_clear_error(scenario_file):
     sc = load_scenario(scenario_file)
     with pytest.raises(ScenarioError, match=r"jobs.stations\[0\] = 'west'"):
         World(replace(sc, jobs=JobsConfig(stations=("west",))))
     with pytest.raises(ScenarioError, match=r"robots.start\[0\] = 'garage'"):
-        World(replace(sc, robots=replace(sc.robots, start=("garage",))))
+        World(replace(sc, robots=(replace(sc.robots[0], start=("garage",)),)))
 
 
 def test_unknown_plugin_is_a_clear_error(scenario_file):

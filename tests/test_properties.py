@@ -91,7 +91,7 @@ def test_follower_never_leaves_free_space_or_breaks_a_limit(period, floor, robot
         map=Path("<random floor>"),
         duration_s=30.0 + 4.0 * trip.travel_time,
         seed=seed,
-        robots=RobotsConfig(count=robots, start=("a",), period_s=period, radius=0.3),
+        robots=(RobotsConfig(count=robots, start=("a",), period_s=period, radius=0.3),),
         jobs=JobsConfig(mode="scripted", scripted=(ScriptedJob(0.0, "b"), ScriptedJob(1.0, "b"))),
     )
     world = World(scenario, floor)

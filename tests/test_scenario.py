@@ -29,7 +29,8 @@ def test_minimal_scenario_gets_defaults(write):
         "greedy",
         "poisson",
     )
-    assert sc.robots.count == 4 and sc.robots.period_s == 0.25
+    assert len(sc.robots) == 1
+    assert sc.robots[0].count == 4 and sc.robots[0].period_s == 0.25
 
 
 def test_full_scenario(write):
@@ -41,7 +42,7 @@ def test_full_scenario(write):
             '[bus]\naddress = "tcp://127.0.0.1:5555"\n'
         )
     )
-    assert sc.seed == 7 and sc.duration_s == 120.0 and sc.robots.start == ("a",)
+    assert sc.seed == 7 and sc.duration_s == 120.0 and sc.robots[0].start == ("a",)
     assert sc.controller.options == {"gain": 0.3}
     assert sc.jobs.scripted[0].station == "b" and sc.jobs.scripted[0].at_s == 5.0
     assert sc.bus_address == "tcp://127.0.0.1:5555"
@@ -73,6 +74,22 @@ def test_bad_values_name_file_field_and_value(write, text, field, value, rule):
     assert rule in message
 
 
+def test_robot_groups_with_their_own_periods(write):
+    sc = load_scenario(
+        write(
+            "[[robots]]\ncount = 2\nperiod_s = 0.5\n"
+            "[[robots]]\ncount = 3\nv_max = 0.6\nstart = ['b']\n"
+        )
+    )
+    assert [(g.count, g.period_s, g.v_max) for g in sc.robots] == [(2, 0.5, 1.0), (3, 0.25, 0.6)]
+    with pytest.raises(ScenarioError, match=r"--robots = 4: .* defines 2 robot groups"):
+        sc.override(robots=4)
+    with pytest.raises(ScenarioError, match=r"robots\[1\].period_s = 0"):
+        load_scenario(write("[[robots]]\ncount = 1\n[[robots]]\nperiod_s = 0\n"))
+    with pytest.raises(ScenarioError, match=r"robots\[0\].speed = 2"):
+        load_scenario(write("[[robots]]\nspeed = 2\n"))
+
+
 def test_missing_map_file(tmp_path):
     path = tmp_path / "s.toml"
     path.write_text('[scenario]\nmap = "nowhere.toml"\n')
@@ -89,7 +106,7 @@ def test_syntax_error_is_reported_with_the_file(tmp_path):
 
 def test_command_line_overrides_are_validated(write):
     sc = load_scenario(write(""))
-    assert sc.override(robots=9, seed=3, duration=60).robots.count == 9
+    assert sc.override(robots=9, seed=3, duration=60).robots[0].count == 9
     with pytest.raises(ScenarioError, match=r"command line: --robots = -1"):
         sc.override(robots=-1)
     with pytest.raises(ScenarioError, match=r"--map = 'missing.toml': no such map file"):

@@ -72,6 +72,7 @@ class RobotState:
     tick: int = 0
     job: JobRecord | None = None
     jobs_completed: int = 0
+    return_home: bool = True
 
     @property
     def goal(self) -> tuple[float, float] | None:
@@ -105,17 +106,23 @@ class World:
         self.floor = floor if floor is not None else load_floor(scenario.map)
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
-        rc = scenario.robots
-        self.spec = RobotSpec(v_max=rc.v_max, a_max=rc.a_max, radius=rc.radius, period=rc.period_s)
-        self.planner = PathPlanner(self.floor, v_max=rc.v_max, a_max=rc.a_max)
-        model = DoubleIntegrator(rc.period_s, rc.a_max)
-        width = max(2, len(str(rc.count)))
-        homes = self._start_positions(rc.count)
+        # One planner per distinct (v_max, a_max): references depend on both.
+        self._planners: dict[tuple[float, float], PathPlanner] = {}
+        total = sum(g.count for g in scenario.robots)
+        width = max(2, len(str(total)))
+        homes = self._start_positions()
         self.robots: dict[str, RobotState] = {}
-        for i in range(rc.count):
-            rid = f"r{i + 1:0{width}d}"
-            hx, hy = homes[i]
-            self.robots[rid] = RobotState(rid, self.spec, model, (hx, hy), hx, hy)
+        for group in scenario.robots:
+            spec = RobotSpec(group.v_max, group.a_max, group.radius, group.period_s)
+            model = DoubleIntegrator(group.period_s, group.a_max)
+            for _ in range(group.count):
+                rid = f"r{len(self.robots) + 1:0{width}d}"
+                hx, hy = homes[len(self.robots)]
+                self.robots[rid] = RobotState(
+                    rid, spec, model, (hx, hy), hx, hy, return_home=group.return_home
+                )
+        #: The planner dispatchers get for travel-time estimates (the first group's limits).
+        self.planner = self.planner_for(next(iter(self.robots.values())).spec)
         self.recorder = Recorder(list(self.robots))
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
@@ -123,9 +130,9 @@ class World:
         self.stats: dict[str, int] = defaultdict(int)
 
         controllers = {}
-        for rid in self.robots:
+        for rid, robot in self.robots.items():
             c = load_controller(scenario.controller.name, scenario.controller.options)
-            c.reset(ControllerContext(rid, self.spec, self.floor, self.planner))
+            c.reset(ControllerContext(rid, robot.spec, self.floor, self.planner_for(robot.spec)))
             controllers[rid] = c
         self.exchange = Exchange(scenario.bus_address)
         self.host = AgentHost(self.exchange.address, controllers, name="local")
@@ -138,52 +145,68 @@ class World:
         self._idle_since: dict[str, float] = {}
 
     # -- set-up ---------------------------------------------------------------------------------
-    def _start_positions(self, count: int) -> list[tuple[float, float]]:
-        """Distinct start positions around the start stations (cycled), clear of each other."""
-        names = list(self.scenario.robots.start)
+    def planner_for(self, spec: RobotSpec) -> PathPlanner:
+        """The shared path planner for robots with `spec`'s speed and acceleration limits."""
+        key = (spec.v_max, spec.a_max)
+        if key not in self._planners:
+            self._planners[key] = PathPlanner(self.floor, v_max=spec.v_max, a_max=spec.a_max)
+        return self._planners[key]
+
+    def _start_positions(self) -> list[tuple[float, float]]:
+        """Distinct start positions around each group's start stations (cycled), clear of each
+        other, in robot order."""
         stations = self.floor.stations
-        for i, name in enumerate(names):
-            if name not in stations:
-                raise ScenarioError(
-                    self.scenario.source,
-                    f"robots.start[{i}]",
-                    name,
-                    f"no such station on {self.floor.source} "
-                    f"(known: {', '.join(sorted(stations))})",
-                )
-        if not names:
-            names = [s.name for s in self.floor.spec.stations if s.kind == "depot"]
-            names = names or [self.floor.spec.stations[0].name]
-        spacing = 2.0 * self.scenario.robots.radius + 0.2
+        depots = [s.name for s in self.floor.spec.stations if s.kind == "depot"]
+        spacing = 2.0 * max(g.radius for g in self.scenario.robots) + 0.2
         components = {
             region: n
             for n, members in enumerate(nx.connected_components(self.floor.graph))
             for region in members
         }
         taken: dict[tuple[int, int], list[tuple[float, float]]] = defaultdict(list)
-        spots = {name: self._spots_around(stations[name], spacing, components) for name in names}
-        out = []
-        for i in range(count):
-            name = names[i % len(names)]
-            for p in spots[name]:
-                cx, cy = int(p[0] // spacing), int(p[1] // spacing)
-                near = (
-                    q for dx in (-1, 0, 1) for dy in (-1, 0, 1) for q in taken[cx + dx, cy + dy]
-                )
-                if all(math.hypot(p[0] - q[0], p[1] - q[1]) >= spacing - 1e-9 for q in near):
-                    taken[cx, cy].append(p)
-                    out.append(p)
-                    break
-            else:
-                s = stations[name]
-                raise ScenarioError(
-                    self.scenario.source,
-                    "robots.count",
-                    self.scenario.robots.count,
-                    f"no free start position left near {name} ({s.x:g}, {s.y:g}); "
-                    "use fewer robots or more start stations",
-                )
+        spots: dict[str, Any] = {}
+        out: list[tuple[float, float]] = []
+        for g, group in enumerate(self.scenario.robots):
+            where = "robots" if len(self.scenario.robots) == 1 else f"robots[{g}]"
+            for i, name in enumerate(group.start):
+                if name not in stations:
+                    raise ScenarioError(
+                        self.scenario.source,
+                        f"{where}.start[{i}]",
+                        name,
+                        f"no such station on {self.floor.source} "
+                        f"(known: {', '.join(sorted(stations))})",
+                    )
+            names = list(group.start) or depots or [self.floor.spec.stations[0].name]
+            for i in range(group.count):
+                name = names[i % len(names)]
+                if name not in spots:
+                    spots[name] = self._spots_around(stations[name], spacing, components)
+                out.append(self._claim(spots[name], taken, spacing, name, where, group.count))
         return out
+
+    def _claim(
+        self, spots, taken, spacing: float, name: str, where: str, count: int
+    ) -> tuple[float, float]:
+        """The next of `spots` at least `spacing` from every spot already taken."""
+        for p in spots:
+            cx, cy = int(p[0] // spacing), int(p[1] // spacing)
+            cells = [(cx + dx, cy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
+            if all(
+                math.hypot(p[0] - q[0], p[1] - q[1]) >= spacing - 1e-9
+                for c in cells
+                for q in taken.get(c, ())
+            ):
+                taken[cx, cy].append(p)
+                return p
+        s = self.floor.station(name)
+        raise ScenarioError(
+            self.scenario.source,
+            f"{where}.count",
+            count,
+            f"no free start position left near {name} ({s.x:g}, {s.y:g}); "
+            "use fewer robots or more start stations",
+        )
 
     def _spots_around(self, station, spacing: float, components: dict[int, int]):
         """Free spots on a square grid around `station`, ring by ring, reachable from it."""
@@ -263,7 +286,7 @@ class World:
         out = []
         for r in robots:
             goal = r.goal
-            if goal is None and self.scenario.robots.return_home:
+            if goal is None and r.return_home:
                 goal = r.home
             out.append(
                 Observation(
@@ -363,7 +386,7 @@ class World:
         return self._summarise(wall)
 
     def _progress(self, progress: Callable[[float], None], duration: float):
-        step = max(duration / 200.0, self.spec.period)
+        step = max(duration / 200.0, min(r.spec.period for r in self.robots.values()))
         while True:
             progress(self.env.now)
             yield self.env.timeout(step)
