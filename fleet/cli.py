@@ -9,6 +9,7 @@ import warnings
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -26,7 +27,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.handler(args, console)
     except FleetError as exc:
-        Console(stderr=True).print(f"[bold red]error:[/] {exc}", highlight=False)
+        # Escape: messages quote TOML like "[floor]" that rich would take for markup.
+        Console(stderr=True).print(
+            f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True
+        )
         return 2
 
 
@@ -135,11 +139,11 @@ def _cmd_plugins(args: argparse.Namespace, console: Console) -> int:
         t.add_column(col)
     for info in found:
         dist = f"{info.distribution or '?'} {info.version or ''}".strip()
-        status = "ok" if info.error is None else f"[red]broken:[/] {info.error}"
+        status = "ok" if info.error is None else f"[red]broken:[/] {escape(info.error)}"
         t.add_row(info.kind, info.name, info.value, dist, status)
     console.print(t)
     for w in caught:
-        Console(stderr=True).print(f"[yellow]warning:[/] {w.message}", highlight=False)
+        Console(stderr=True).print(f"[yellow]warning:[/] {escape(str(w.message))}", highlight=False)
     return 0
 
 

@@ -87,6 +87,18 @@ def test_same_seed_same_digest_other_seed_other_digest(scenario_file):
     assert other["digest"] != first["digest"]
 
 
+@pytest.mark.parametrize("transport", ["ipc", "tcp"])
+def test_same_run_over_ipc_and_tcp_as_over_inproc(scenario_file, tmp_path, transport):
+    sc = replace(load_scenario(scenario_file), duration_s=120.0)
+    address = f"ipc://{tmp_path}/bus" if transport == "ipc" else "tcp://127.0.0.1:*"
+    world = World(replace(sc, bus_address=address))
+    assert world.exchange.address.startswith(f"{transport}://")
+    over_socket = world.run().summary
+    in_process = World(sc).run().summary
+    assert over_socket["digest"] == in_process["digest"]
+    assert over_socket["engine"]["bus_rounds"] == in_process["engine"]["bus_rounds"] > 0
+
+
 def test_scripted_jobs_arrive_in_order(scenario_file):
     sc = load_scenario(scenario_file)
     sc = replace(
@@ -147,3 +159,29 @@ def test_unknown_plugin_is_a_clear_error(scenario_file):
     sc = load_scenario(scenario_file)
     with pytest.raises(PluginError, match="nonesuch"):
         World(replace(sc, controller=PluginChoice("nonesuch")))
+
+
+def test_a_controller_that_raises_costs_its_robot_a_brake_not_the_run(
+    scenario_file, monkeypatch, caplog
+):
+    from fleet_plugins.follower import PathFollower
+
+    import fleet.engine.world as world_module
+
+    class Flaky(PathFollower):
+        """The follower, except that it raises on every 10th tick of robot r01."""
+
+        def compute(self, obs):
+            if self.context.robot == "r01" and obs.tick % 10 == 9:
+                raise RuntimeError("sensor glitch")
+            return super().compute(obs)
+
+    monkeypatch.setattr(world_module, "load_controller", lambda name, options: Flaky())
+    sc = replace(load_scenario(scenario_file), duration_s=60.0)
+    result = World(sc).run()
+    engine = result.summary["engine"]
+    assert engine["commands_error"] == 24  # ticks 9, 19, ..., 239 of r01
+    assert result.summary["violations"]["obstacle"] == 0
+    assert result.summary["violations"]["speed_zone"] == 0
+    glitches = [r for r in caplog.records if "sensor glitch" in r.getMessage()]
+    assert len(glitches) == 1  # logged once per robot, not once per tick

@@ -261,15 +261,19 @@ class AgentHost:
             self.stats["controller_errors"] += 1
             first = robot not in self._failed
             self._failed.add(robot)
-            self.log.warning(
-                "agent %s: robot %s: controller %s failed at tick %d (%s: %s); braking",
+            # Once per robot with the traceback; later failures only at debug level (they are
+            # counted in `stats` and in the run summary), so a failing plugin cannot flood the log.
+            self.log.log(
+                logging.WARNING if first else logging.DEBUG,
+                "agent %s: robot %s: controller %s failed at tick %d (%s: %s); braking%s",
                 self.name,
                 robot,
                 type(controller).__name__,
                 obs.tick,
                 type(exc).__name__,
                 exc,
-                exc_info=first,  # the traceback once per robot, not every tick
+                " (further failures of this robot are logged at debug level)" if first else "",
+                exc_info=first,
             )
             return command_to_wire(braking_command(controller, obs))
 
