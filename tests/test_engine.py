@@ -185,3 +185,29 @@ def test_a_controller_that_raises_costs_its_robot_a_brake_not_the_run(
     assert result.summary["violations"]["speed_zone"] == 0
     glitches = [r for r in caplog.records if "sensor glitch" in r.getMessage()]
     assert len(glitches) == 1  # logged once per robot, not once per tick
+
+
+def test_a_station_no_robot_can_reach_is_refused_before_the_run(tmp_path):
+    # A wall splits the hall: the depot is west of it, "island" east of it.
+    (tmp_path / "split.toml").write_text(
+        '[floor]\nname = "split"\nrect = [0, 0, 20, 10]\ndefault_v_max = 1.0\n'
+        '[[obstacles]]\nname = "wall"\nrect = [9, 0, 10, 10]\n'
+        '[[stations]]\nname = "depot"\nat = [2, 5]\nkind = "depot"\n'
+        '[[stations]]\nname = "west"\nat = [6, 5]\n'
+        '[[stations]]\nname = "island"\nat = [15, 5]\n'
+    )
+    path = tmp_path / "split_run.toml"
+    path.write_text('[scenario]\nmap = "split.toml"\n[robots]\ncount = 1\n')
+    with pytest.raises(ScenarioError, match=r"jobs.stations = 'island': .* cannot be reached"):
+        World(load_scenario(path))
+    west_only = replace(load_scenario(path), jobs=JobsConfig(stations=("west",)))
+    assert World(west_only).run().summary["violations"]["obstacle"] == 0
+
+
+def test_a_world_runs_once(scenario_file):
+    from fleet.errors import FleetError
+
+    world = World(replace(load_scenario(scenario_file), duration_s=5.0))
+    world.run()
+    with pytest.raises(FleetError, match="already run"):
+        world.run()

@@ -26,7 +26,7 @@ import simpy
 from fleet.bus import AgentHost, Exchange
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
-from fleet.errors import ScenarioError
+from fleet.errors import FleetError, ScenarioError
 from fleet.floor import Floor, load_floor
 from fleet.paths import PathPlanner
 from fleet.plugins import (
@@ -108,6 +108,11 @@ class World:
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
         self._planners: dict[tuple[float, float], PathPlanner] = {}
+        self._components = {
+            region: n
+            for n, members in enumerate(nx.connected_components(self.floor.graph))
+            for region in members
+        }
         total = sum(g.count for g in scenario.robots)
         width = max(2, len(str(total)))
         homes = self._start_positions()
@@ -126,6 +131,7 @@ class World:
         self.recorder = Recorder(list(self.robots))
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
+        self._check_reachable(homes)
         self.dispatcher = load_dispatcher(scenario.dispatcher.name, scenario.dispatcher.options)
         self.stats: dict[str, int] = defaultdict(int)
 
@@ -139,6 +145,7 @@ class World:
         self.exchange.add_local(self.host)
         self.exchange.wait_for_agents(list(self.robots))
 
+        self._ran = False
         self._pending: list[tuple[RobotState, simpy.Event]] = []
         self._round = 0
         self._dispatch_scheduled = False
@@ -158,11 +165,7 @@ class World:
         stations = self.floor.stations
         depots = [s.name for s in self.floor.spec.stations if s.kind == "depot"]
         spacing = 2.0 * max(g.radius for g in self.scenario.robots) + 0.2
-        components = {
-            region: n
-            for n, members in enumerate(nx.connected_components(self.floor.graph))
-            for region in members
-        }
+        components = self._components
         taken: dict[tuple[int, int], list[tuple[float, float]]] = defaultdict(list)
         spots: dict[str, Any] = {}
         out: list[tuple[float, float]] = []
@@ -184,6 +187,23 @@ class World:
                     spots[name] = self._spots_around(stations[name], spacing, components)
                 out.append(self._claim(spots[name], taken, spacing, name, where, group.count))
         return out
+
+    def _check_reachable(self, homes: list[tuple[float, float]]) -> None:
+        """Every job destination must be reachable from every robot's start: a job no robot can
+        reach would sit assigned forever."""
+        starts = {self._components[self.floor.locate(*h)] for h in homes}
+        scripted = [j.station for j in self.scenario.jobs.scripted]
+        for name in dict.fromkeys(self.job_source.stations + scripted):
+            s = self.floor.station(name)
+            part = self._components.get(self.floor.locate(s.x, s.y))
+            if starts != {part}:
+                raise ScenarioError(
+                    self.scenario.source,
+                    "jobs.stations",
+                    name,
+                    f"station {name!r} on {self.floor.source} cannot be reached from every "
+                    "robot's start (the floor is split into unconnected parts)",
+                )
 
     def _claim(
         self, spots, taken, spacing: float, name: str, where: str, count: int
@@ -369,7 +389,13 @@ class World:
 
     # -- running --------------------------------------------------------------------------------
     def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
-        """Simulate `scenario.duration_s` seconds; returns the summary and the safety report."""
+        """Simulate `scenario.duration_s` seconds; returns the summary and the safety report.
+
+        A World runs once: its bus is closed at the end. Build a new World for another run.
+        """
+        if self._ran:
+            raise FleetError("this World has already run; build a new World for another run")
+        self._ran = True
         duration = self.scenario.duration_s
         wall0 = time.perf_counter()
         self.env.process(self._release_jobs())
