@@ -135,12 +135,15 @@ def _cmd_plugins(args: argparse.Namespace, console: Console) -> int:
         warnings.simplefilter("always")
         found = discover()
     t = Table(title="Plugins", header_style="bold")
-    for col in ("kind", "name", "entry point", "distribution", "status"):
-        t.add_column(col)
+    t.add_column("kind")
+    t.add_column("name")
+    t.add_column("from", overflow="fold")
+    t.add_column("status", overflow="fold")
     for info in found:
         dist = f"{info.distribution or '?'} {info.version or ''}".strip()
+        where = f"{info.value}\n{dist}" + (f"\n{info.origin}" if info.origin else "")
         status = "ok" if info.error is None else f"[red]broken:[/] {escape(info.error)}"
-        t.add_row(info.kind, info.name, info.value, dist, status)
+        t.add_row(info.kind, info.name, escape(where), status)
     console.print(t)
     for w in caught:
         Console(stderr=True).print(f"[yellow]warning:[/] {escape(str(w.message))}", highlight=False)

@@ -392,3 +392,17 @@ def test_check_dispatcher_fails_a_bad_dispatcher_naming_the_rule(
 
 def test_conformance_errors_are_assertion_errors_so_pytest_reports_failures() -> None:
     assert issubclass(ConformanceError, AssertionError)
+
+
+def test_fleet_plugins_command_lists_broken_plugins_with_their_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from fleet.cli import main
+
+    install(tmp_path, monkeypatch, ENTRY_POINTS)
+    monkeypatch.setenv("COLUMNS", "200")
+    assert main(["plugins"]) == 0
+    out, err = capsys.readouterr()
+    assert "acme-fleet 2.3" in out and "acme_dispatch" in out
+    assert "broken: cannot import 'acme_no_such_module:Ghost'" in out  # listed with its error
+    assert "warning:" in err and "'ghost'" in err
