@@ -211,3 +211,67 @@ def test_a_world_runs_once(scenario_file):
     world.run()
     with pytest.raises(FleetError, match="already run"):
         world.run()
+
+
+def test_a_scripted_run_only_needs_its_own_stations_reachable(tmp_path):
+    (tmp_path / "split.toml").write_text(
+        '[floor]\nname = "split"\nrect = [0, 0, 20, 10]\ndefault_v_max = 1.0\n'
+        '[[obstacles]]\nname = "wall"\nrect = [9, 0, 10, 10]\n'
+        '[[stations]]\nname = "depot"\nat = [2, 5]\nkind = "depot"\n'
+        '[[stations]]\nname = "west"\nat = [6, 5]\n'
+        '[[stations]]\nname = "island"\nat = [15, 5]\n'
+    )
+    path = tmp_path / "run.toml"
+    path.write_text(
+        '[scenario]\nmap = "split.toml"\n[robots]\ncount = 1\n[jobs]\nmode = "scripted"\n'
+        '[[jobs.scripted]]\nat_s = 0\nstation = "west"\n'
+        '[[jobs.scripted]]\nat_s = 5\nstation = "island"\n'
+    )
+    with pytest.raises(ScenarioError, match=r"jobs.scripted\[1\].station = 'island'"):
+        World(load_scenario(path))
+    path.write_text(path.read_text().replace('"island"', '"west"'))
+    assert World(load_scenario(path)).run().summary["jobs"]["completed"] == 2
+
+
+class _Raising:
+    def assign(self, jobs, robots, context):
+        raise RuntimeError("dispatcher bug")
+
+
+class _Sloppy:
+    """Returns plain tuples and assigns a robot that is busy."""
+
+    def assign(self, jobs, robots, context):
+        from fleet.plugins import Assignment
+
+        busy = [r.robot for r in robots if not r.idle]
+        out = [(jobs[0].id, robots[0].robot)]
+        if busy:
+            out.append(Assignment(jobs[0].id, busy[0]))
+        return out
+
+
+@pytest.mark.parametrize("dispatcher", [_Raising, _Sloppy])
+def test_a_faulty_dispatcher_never_crashes_the_run(scenario_file, monkeypatch, dispatcher):
+    import fleet.engine.world as world_module
+
+    monkeypatch.setattr(world_module, "load_dispatcher", lambda name, options: dispatcher())
+    sc = replace(load_scenario(scenario_file), duration_s=120.0)
+    result = World(sc).run()
+    engine = result.summary["engine"]
+    assert result.summary["jobs"]["released"] > 0
+    assert result.summary["jobs"]["completed"] == 0  # nothing valid was ever assigned
+    key = "dispatcher_errors" if dispatcher is _Raising else "assignments_rejected"
+    assert engine[key] > 0
+
+
+def test_the_engine_keeps_each_robots_latest_plan(scenario_file):
+    sc = replace(load_scenario(scenario_file), duration_s=30.0)
+    world = World(sc)
+    world.run()
+    moved = [r for r in world.robots.values() if world.recorder.trajectories[r.id].distance() > 1]
+    assert moved
+    for robot in moved:
+        times = [p[0] for p in robot.plan]
+        assert len(times) > 1 and times == sorted(times)
+        assert times[0] in world.recorder.trajectories[robot.id].t  # sent at one of its ticks

@@ -30,6 +30,7 @@ from fleet.errors import FleetError, ScenarioError
 from fleet.floor import Floor, load_floor
 from fleet.paths import PathPlanner
 from fleet.plugins import (
+    Assignment,
     Command,
     ControllerContext,
     ControlStatus,
@@ -73,6 +74,8 @@ class RobotState:
     job: JobRecord | None = None
     jobs_completed: int = 0
     return_home: bool = True
+    #: The latest plan the robot's controller sent, ``(t, x, y)`` samples (empty: none yet).
+    plan: tuple[tuple[float, float, float], ...] = ()
 
     @property
     def goal(self) -> tuple[float, float] | None:
@@ -192,14 +195,20 @@ class World:
         """Every job destination must be reachable from every robot's start: a job no robot can
         reach would sit assigned forever."""
         starts = {self._components[self.floor.locate(*h)] for h in homes}
-        scripted = [j.station for j in self.scenario.jobs.scripted]
-        for name in dict.fromkeys(self.job_source.stations + scripted):
+        jobs = self.scenario.jobs
+        if jobs.mode == "scripted":
+            targets = [
+                (f"jobs.scripted[{i}].station", j.station) for i, j in enumerate(jobs.scripted)
+            ]
+        else:
+            targets = [("jobs.stations", name) for name in self.job_source.stations]
+        for field_name, name in targets:
             s = self.floor.station(name)
             part = self._components.get(self.floor.locate(s.x, s.y))
             if starts != {part}:
                 raise ScenarioError(
                     self.scenario.source,
-                    "jobs.stations",
+                    field_name,
                     name,
                     f"station {name!r} on {self.floor.source} cannot be reached from every "
                     "robot's start (the floor is split into unconnected parts)",
@@ -292,6 +301,8 @@ class World:
                 cmd = Command(ax, ay, ControlStatus.ERROR)
             elif cmd.status is not ControlStatus.OK:
                 self.stats[f"commands_{cmd.status.value}"] += 1
+            if cmd.plan:
+                robot.plan = cmd.plan  # an empty plan means the previous one still holds
             a = robot.spec.a_max
             if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
                 self.stats["commands_clipped"] += 1
@@ -367,20 +378,35 @@ class World:
         if not open_jobs or not idle:
             return
         by_id = {rec.job.id: rec for rec in open_jobs}
-        statuses = [RobotStatus(r.id, r.x, r.y, r.vx, r.vy, True, None) for r in idle]
+        statuses = [
+            RobotStatus(r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id)
+            for r in self.robots.values()
+        ]
         context = DispatchContext(self.env.now, self.floor, self.planner)
-        assignments = self.dispatcher.assign([rec.job for rec in open_jobs], statuses, context)
+        name = self.scenario.dispatcher.name
+        try:
+            assignments = list(
+                self.dispatcher.assign([rec.job for rec in open_jobs], statuses, context)
+            )
+        except Exception:  # a plugin may raise anything; jobs stay open for the next try
+            self.stats["dispatcher_errors"] += 1
+            first = self.stats["dispatcher_errors"] == 1
+            log.log(
+                logging.WARNING if first else logging.DEBUG,
+                "dispatcher %r raised at t = %.3f s; jobs stay open",
+                name,
+                self.env.now,
+                exc_info=first,
+            )
+            return
         taken_jobs: set[str] = set()
         for a in assignments:
-            rec = by_id.get(a.job)
-            robot = self.robots.get(a.robot)
+            valid = isinstance(a, Assignment)
+            rec = by_id.get(a.job) if valid else None
+            robot = self.robots.get(a.robot) if valid else None
             if rec is None or robot is None or robot.job is not None or a.job in taken_jobs:
                 self.stats["assignments_rejected"] += 1
-                log.warning(
-                    "dispatcher %r made an invalid assignment %s; ignored",
-                    self.scenario.dispatcher.name,
-                    a,
-                )
+                log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
                 continue
             taken_jobs.add(a.job)
             rec.robot, rec.assigned_s = robot.id, self.env.now
