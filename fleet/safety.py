@@ -6,8 +6,9 @@ straight segment ``p[k] -> p[k+1]`` at the recorded velocity ``v[k]``.
 - **obstacle**: the segment (or, for a robot at rest, the point) leaves the free space, i.e. the
   configuration space of the floor, by more than `tol` metres of length.
 - **speed_zone**: ``|v[k].x|`` or ``|v[k].y|`` exceeds the per-axis limit of some region that the
-  segment overlaps with positive length (a step that straddles a boundary into a slower zone
-  must already be slow; touching a boundary at one point does not count).
+  segment enters (a step that straddles a boundary into a slower zone must already be slow;
+  touching a boundary at one point, or dipping less than `LENGTH_TOL` into a region, does not
+  count; a step running along a shared boundary is bound by the regions on both sides).
 - **collision**: two robots sampled at the same time closer than the sum of their radii; one
   violation per pair and contact episode.
 """
@@ -113,16 +114,23 @@ def check_steps(
 
 
 def _speed_violations(floor, t, xy, v, seg_idx, lines, robot) -> list[Violation]:
-    regions = floor.regions
-    polys = np.array([r.polygon for r in regions], dtype=object)
-    vmax = np.array([r.v_max for r in regions], dtype=float)
-    line_i, reg_i = floor.tree.query(lines, predicate="intersects")
-    if len(line_i) == 0:
-        return []
-    overlap = shapely.length(shapely.intersection(lines[line_i], polys[reg_i])) > LENGTH_TOL
-    line_i, reg_i = line_i[overlap], reg_i[overlap]
+    vmax = np.array([r.v_max for r in floor.regions], dtype=float)
     limit = np.full((len(lines), 2), np.inf)
-    np.minimum.at(limit, line_i, vmax[reg_i])
+    # A step is bound by every region it enters deeper than LENGTH_TOL: its overlap with the
+    # region's core (the region shrunk by LENGTH_TOL). Measuring depth, not length, forgives a
+    # step that runs nearly parallel to a boundary a rounding error on the wrong side of it.
+    cores = floor.region_cores(LENGTH_TOL)
+    line_i, reg_i = floor.tree.query(lines, predicate="intersects")
+    hit = shapely.intersects(lines[line_i], cores[reg_i])
+    np.minimum.at(limit, line_i[hit], vmax[reg_i[hit]])
+    # A step along a shared boundary enters no core: it is bound by the regions on both sides.
+    edge = np.flatnonzero(np.isinf(limit[:, 0]))
+    if len(edge):
+        polys = np.array([r.polygon for r in floor.regions], dtype=object)
+        pick = np.isin(line_i, edge)
+        li, ri = line_i[pick], reg_i[pick]
+        overlap = shapely.length(shapely.intersection(lines[li], polys[ri])) > LENGTH_TOL
+        np.minimum.at(limit, li[overlap], vmax[ri[overlap]])
     speed = np.abs(v[seg_idx])
     bad = np.flatnonzero(np.any(speed > limit + SPEED_TOL, axis=1))
     out = []

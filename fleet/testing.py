@@ -38,14 +38,15 @@ The checks are deterministic (fixed trips, a seeded generator) and need no netwo
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 from shapely.geometry import box
 
+from fleet.bus.schema import command_from_wire, command_to_wire
+from fleet.errors import MessageError
 from fleet.floor import Floor, FloorSpec, Obstacle, SpeedZone, Station
 from fleet.paths import PathPlanner
 from fleet.plugins import (
@@ -61,6 +62,7 @@ from fleet.plugins import (
     RobotSpec,
     RobotStatus,
 )
+from fleet.robot import brake_input
 
 __all__ = [
     "ConformanceError",
@@ -75,17 +77,21 @@ __all__ = [
 #: The rules `check_controller` enforces, by name (the name appears in every failure).
 CONTROLLER_RULES: dict[str, str] = {
     "instantiate": "the factory accepts the options and returns a fleet.plugins.Controller",
-    "command": "compute returns a Command with finite real ax, ay, a ControlStatus other than "
-    "ERROR (the agent's to set) and a plan of finite (t, x, y) samples",
+    "reset": "reset accepts the ControllerContext without raising",
+    "command": "compute returns a Command the bus carries (command_to_wire accepts it: finite "
+    "real ax, ay, a ControlStatus, a plan of finite (t, x, y) tuples or lists), with a status "
+    "other than ERROR (the agent's to set)",
     "accel-bound": "|ax| and |ay| are at most the spec's a_max (tolerance 1e-9)",
     "idle": "with no goal the status is IDLE, a robot at rest gets zero acceleration, and a "
-    "moving one is brought to rest",
+    "moving one is brought to rest within |v|/a_max + 2 s",
     "free-space": "every step p[k] -> p[k+1] = p[k] + dt*v[k] stays in the free space",
     "speed-limit": "on every step |v[k].x|, |v[k].y| are within the per-axis limit "
     "planner.speed_limit gives for that step (tolerance 1e-6 m/s)",
     "reach-goal": "each goal is reached (within 0.05 m, speed below 0.01 m/s) within three times "
-    "the reference duration plus 20 s, and the robot stays there while the goal holds",
-    "determinism": "two fresh instances fed the same observations give identical commands",
+    "the reference duration plus 20 s, also after the engine substituted braking for a few "
+    "ticks, and the robot stays there while the goal holds",
+    "determinism": "two fresh instances fed the same observations give identical commands (as "
+    "the bus delivers them)",
 }
 
 #: The rules `check_dispatcher` enforces, by name.
@@ -98,7 +104,8 @@ DISPATCHER_RULES: dict[str, str] = {
     "unique": "no job and no robot appears in two assignments",
     "progress": "with open jobs and idle robots on one connected floor, at least one job is "
     "assigned (a dispatcher that never assigns stalls the fleet)",
-    "deterministic": "two fresh instances given equal inputs return equal assignments",
+    "deterministic": "two fresh instances given the same cases in the same order return equal "
+    "assignments",
     "no-mutation": "assign leaves its job list, robot list and context.extra unchanged",
 }
 
@@ -111,6 +118,7 @@ GOAL_RADIUS = 0.05  # m
 GOAL_SPEED = 0.01  # m/s
 REST_SPEED = 1e-9  # m/s per axis: "at rest" for the zero-acceleration rule
 HOLD_TICKS = 8  # ticks a robot must stay at a reached goal
+REST_SLACK = 2.0  # s: allowed beyond |v|/a_max to bring a robot to rest when the goal goes
 
 _SOURCE = "fleet.testing:conformance_floor"
 
@@ -180,14 +188,20 @@ def conformance_floor() -> Floor:
 
 @dataclass(frozen=True)
 class _Phase:
-    """Part of the controller drill: hold `goal` (None: idle) for the given ticks or until done."""
+    """Part of the controller drill: hold `goal` (None: idle) for the given ticks or until done.
+
+    On the phase's ticks in `brakes` (counted from its start) the robot gets the engine's braking
+    input instead of the controller's command, as when an answer is missing or late.
+    """
 
     goal: tuple[float, float] | None
     ticks: int | None = None  # None: until the goal is reached (or the robot rests, when idle)
+    brakes: range = range(0)
 
 
 # From rest at the depot: stand idle, cross the hall around the press, drive into the slow zone,
-# head for the south-west and change its mind half-way to the north-west, then stop.
+# head for the south-west and change its mind half-way to the north-west; head south again and
+# lose the goal at speed; cross the hall again while the engine brakes for 1 s, and stop.
 _START = (2.0, 5.0)
 _DRILL = (
     _Phase(None, ticks=4),
@@ -195,6 +209,9 @@ _DRILL = (
     _Phase((17.0, 1.5)),
     _Phase((2.0, 2.0), ticks=16),
     _Phase((2.0, 8.0)),
+    _Phase((2.0, 2.0), ticks=12),
+    _Phase(None),
+    _Phase((18.0, 7.0), brakes=range(12, 16)),
     _Phase(None),
 )
 
@@ -206,10 +223,14 @@ def check_controller(
 
     The drill (fixed, on `conformance_floor` with `CONFORMANCE_SPEC` and a real
     `fleet.paths.PathPlanner`): from rest at (2, 5) stand idle, drive to (18, 7) around the
-    press, into the slow zone at (17, 1.5), towards (2, 2) and after 4 s to (2, 8) instead, and
-    stop. The robot is the double integrator ``p += dt*v; v += dt*clip(u, -a_max, a_max)``.
-    Every tick is checked against `CONTROLLER_RULES`; then a second fresh instance replays the
-    same observations and must answer identically.
+    press, into the slow zone at (17, 1.5), towards (2, 2) and after 4 s to (2, 8) instead;
+    towards (2, 2) again until the goal is withdrawn after 3 s, at about 0.9 m/s (the robot
+    must come to rest); to (18, 7) again, with the controller's commands replaced by the engine's
+    braking input (`fleet.robot.brake_input`) for 1 s from 3 s into the trip; and stop.
+    The robot is the double integrator ``p += dt*v; v += dt*clip(u, -a_max, a_max)``.
+    Every command is checked as the bus delivers it (``command_from_wire(command_to_wire(c))``)
+    and every tick against `CONTROLLER_RULES`; then a second fresh instance replays the same
+    observations and must answer identically.
 
     Parameters
     ----------
@@ -255,10 +276,11 @@ class _Drill:
         self.v = np.zeros(2)
         self.tick = 0
         self.log: list[tuple[Observation, Command]] = []
+        self.braked: list[int] = []  # ticks of the current phase on which the kit braked
         try:
             controller.reset(ControllerContext("conformance", self.spec, floor, self.planner))
         except Exception as exc:
-            _fail_controller(label, "command", f"reset raised {type(exc).__name__}: {exc}")
+            _fail_controller(label, "reset", f"reset raised {type(exc).__name__}: {exc}")
 
     @property
     def t(self) -> float:
@@ -266,15 +288,20 @@ class _Drill:
 
     def drive(self) -> None:
         for phase in _DRILL:
+            self.braked = []
             if phase.goal is None:
                 self._idle(phase)
             else:
                 self._go(phase)
 
     def _idle(self, phase: _Phase) -> None:
-        limit = phase.ticks if phase.ticks is not None else round(20.0 / self.spec.period)
+        speed = float(np.hypot(*self.v))
+        if phase.ticks is not None:
+            limit = phase.ticks
+        else:  # braking at a_max takes |v|/a_max; the slack forgives gentler braking
+            limit = math.ceil((speed / self.spec.a_max + REST_SLACK) / self.spec.period)
         for _ in range(limit):
-            at_rest = bool(np.max(np.abs(self.v)) <= REST_SPEED)
+            at_rest = self._at_rest()
             obs, cmd = self.step(None)
             if cmd.status is not ControlStatus.IDLE:
                 self._fail("idle", obs, f"status {cmd.status} with goal None, expected IDLE")
@@ -284,27 +311,32 @@ class _Drill:
                 )
             if phase.ticks is None and at_rest:
                 return
-        if phase.ticks is None:
+        if phase.ticks is None and not self._at_rest():
             self._fail(
                 "idle",
                 self.log[-1][0],
-                f"still moving at v = {_vec(self.v)} after {limit} ticks with no goal",
+                f"still moving at v = {_vec(self.v)} after {limit} ticks "
+                f"({limit * self.spec.period:g} s) with no goal, from {speed:.3g} m/s when the "
+                f"goal was withdrawn",
             )
+
+    def _at_rest(self) -> bool:
+        return bool(np.max(np.abs(self.v)) <= REST_SPEED)
 
     def _go(self, phase: _Phase) -> None:
         goal = phase.goal
         assert goal is not None
         if phase.ticks is not None:
-            for _ in range(phase.ticks):
-                self.step(goal)
+            for i in range(phase.ticks):
+                self.step(goal, brake=i in phase.brakes)
             return
         # The time allowed scales with what the path layer needs from a standstill here.
         ref = self.planner.reference(tuple(self.p), goal, dt=self.spec.period, t0=self.t)
         limit = math.ceil((3.0 * ref.duration + 20.0) / self.spec.period)
-        for _ in range(limit):
+        for i in range(limit):
             if self._arrived(goal):
                 break
-            self.step(goal)
+            self.step(goal, brake=i in phase.brakes)
         else:
             self._fail(
                 "reach-goal",
@@ -327,16 +359,45 @@ class _Drill:
         return _dist(self.p, goal) <= GOAL_RADIUS and float(np.hypot(*self.v)) < GOAL_SPEED
 
     def ask(self, obs: Observation) -> Command:
-        """The controller's command for `obs`, checked for shape and bounds."""
+        """The controller's command for `obs` as the bus delivers it, checked."""
         try:
             cmd = self.controller.compute(obs)
         except Exception as exc:
             self._fail("command", obs, f"compute raised {type(exc).__name__}: {exc}")
-        _check_command(cmd, obs, self.spec, self.label)
-        return cmd
+        return self._as_sent(cmd, obs)
 
-    def step(self, goal: tuple[float, float] | None) -> tuple[Observation, Command]:
-        """Observe, command, check this tick's step, integrate."""
+    def _as_sent(self, cmd: object, obs: Observation) -> Command:
+        """`cmd` as the bus delivers it (encoded, then decoded), checked against the rules."""
+        if not isinstance(cmd, Command):
+            self._fail("command", obs, f"compute returned {cmd!r}, not a Command")
+        try:
+            sent = command_from_wire(command_to_wire(cmd))
+        except MessageError as exc:
+            self._fail("command", obs, f"the bus rejects the command: {exc}")
+        except Exception as exc:  # e.g. a numpy array as the plan: its truth value is ambiguous
+            self._fail(
+                "command",
+                obs,
+                f"the bus cannot encode the command (plan of type {type(cmd.plan).__name__}): "
+                f"{type(exc).__name__}: {exc}",
+            )
+        if sent.status is ControlStatus.ERROR:
+            self._fail("command", obs, "status = ERROR, which only the agent may set")
+        a_max = self.spec.a_max
+        if max(abs(sent.ax), abs(sent.ay)) > a_max + ACCEL_TOL:
+            self._fail(
+                "accel-bound", obs, f"(ax, ay) = ({sent.ax!r}, {sent.ay!r}) with a_max = {a_max}"
+            )
+        return sent
+
+    def step(
+        self, goal: tuple[float, float] | None, *, brake: bool = False
+    ) -> tuple[Observation, Command]:
+        """Observe, command, check this tick's step, integrate.
+
+        With `brake` the controller is still asked (and checked) but the robot gets the engine's
+        braking input instead, as when the controller's answer is lost or late.
+        """
         obs = Observation(
             robot="conformance",
             tick=self.tick,
@@ -354,7 +415,11 @@ class _Drill:
         dt, a_max = self.spec.period, self.spec.a_max
         p_next = self.p + dt * self.v
         self._check_step(obs, self.p, p_next, self.v)
-        u = np.clip([cmd.ax, cmd.ay], -a_max, a_max)
+        if brake:
+            u = np.array(brake_input(float(self.v[0]), float(self.v[1]), dt, a_max))
+            self.braked.append(self.tick)
+        else:
+            u = np.clip([cmd.ax, cmd.ay], -a_max, a_max)
         self.p, self.v = p_next, self.v + dt * u
         self.tick += 1
         return obs, cmd
@@ -374,37 +439,16 @@ class _Drill:
                 f"step {_vec(p)} -> {_vec(q)} at v = {_vec(v)}, limit {_vec(limit)} per axis",
             )
 
-    def _fail(self, rule: str, obs: Observation, detail: str) -> None:
+    def _fail(self, rule: str, obs: Observation, detail: str) -> NoReturn:
+        if self.braked:
+            detail += (
+                f" (the kit substituted the engine's braking for the commands of ticks "
+                f"{self.braked[0]}-{self.braked[-1]}, as the engine does when answers are lost)"
+            )
         _fail_controller(self.label, rule, f"tick {obs.tick} (t = {obs.t:g} s): {detail}")
 
 
-def _check_command(cmd: object, obs: Observation, spec: RobotSpec, label: str) -> None:
-    where = f"tick {obs.tick} (t = {obs.t:g} s)"
-    if not isinstance(cmd, Command):
-        _fail_controller(label, "command", f"{where}: compute returned {cmd!r}, not a Command")
-    assert isinstance(cmd, Command)
-    for axis in ("ax", "ay"):
-        value = getattr(cmd, axis)
-        if isinstance(value, bool) or not isinstance(value, numbers.Real):
-            _fail_controller(label, "command", f"{where}: {axis} = {value!r} is not a real number")
-        if not math.isfinite(value):
-            _fail_controller(label, "command", f"{where}: {axis} = {value!r} is not finite")
-    if not isinstance(cmd.status, ControlStatus) or cmd.status is ControlStatus.ERROR:
-        _fail_controller(label, "command", f"{where}: status = {cmd.status!r}")
-    for sample in cmd.plan:
-        if len(sample) != 3 or not all(
-            isinstance(c, numbers.Real) and math.isfinite(c) for c in sample
-        ):
-            _fail_controller(label, "command", f"{where}: plan sample {sample!r} is not (t, x, y)")
-    if max(abs(cmd.ax), abs(cmd.ay)) > spec.a_max + ACCEL_TOL:
-        _fail_controller(
-            label,
-            "accel-bound",
-            f"{where}: (ax, ay) = ({cmd.ax!r}, {cmd.ay!r}) with a_max = {spec.a_max}",
-        )
-
-
-def _fail_controller(label: str, rule: str, detail: str) -> None:
+def _fail_controller(label: str, rule: str, detail: str) -> NoReturn:
     raise ConformanceError(label, rule, CONTROLLER_RULES, detail)
 
 
@@ -427,7 +471,9 @@ def check_dispatcher(
     Cases (on `conformance_floor`, with a real `fleet.paths.PathPlanner` in the context): empty
     inputs; jobs with every robot busy; a job right next to a busy robot; a busy robot listed
     first; and 24 random fleets (1-6 jobs, 1-6 robots, some busy) from a fixed seed. Every
-    answer is checked against `DISPATCHER_RULES`, and a fresh instance must give the same one.
+    answer is checked against `DISPATCHER_RULES`; then a second fresh instance is given the
+    same cases in the same order (a dispatcher may keep state between calls) and must answer
+    identically.
 
     Parameters
     ----------
@@ -444,16 +490,24 @@ def check_dispatcher(
     """
     label = _label(factory)
     floor = conformance_floor()
+    cases = _dispatch_cases(floor)
+    first = _instantiate(factory, options, Dispatcher, label, DISPATCHER_RULES)
     planner = PathPlanner(floor, CONFORMANCE_SPEC.v_max, CONFORMANCE_SPEC.a_max)
-    dispatcher = _instantiate(factory, options, Dispatcher, label, DISPATCHER_RULES)
-    for case in _dispatch_cases(floor):
-        out = _assign(dispatcher, case, floor, planner, label)
+    answers = []
+    for case in cases:
+        out = _assign(first, case, floor, planner, label)
         _check_assignments(out, case, label)
-        fresh = _instantiate(factory, options, Dispatcher, label, DISPATCHER_RULES)
-        again = _assign(fresh, case, floor, planner, label)
+        answers.append(out)
+    second = _instantiate(factory, options, Dispatcher, label, DISPATCHER_RULES)
+    planner = PathPlanner(floor, CONFORMANCE_SPEC.v_max, CONFORMANCE_SPEC.a_max)  # nothing shared
+    for case, out in zip(cases, answers, strict=True):
+        again = _assign(second, case, floor, planner, label)
         if again != out:
             _fail_dispatcher(
-                label, "deterministic", f"case {case.name!r}: first {out!r}, fresh {again!r}"
+                label,
+                "deterministic",
+                f"case {case.name!r}: the first instance answered {out!r}, a second fresh one "
+                f"given the same cases in the same order {again!r}",
             )
 
 
@@ -569,7 +623,7 @@ def _free_point(rng: np.random.Generator, floor: Floor) -> tuple[float, float]:
             return x, y
 
 
-def _fail_dispatcher(label: str, rule: str, detail: str) -> None:
+def _fail_dispatcher(label: str, rule: str, detail: str) -> NoReturn:
     raise ConformanceError(label, rule, DISPATCHER_RULES, detail)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -9,6 +10,7 @@ import multiprocessing
 import random
 import socket
 import threading
+import time
 
 import pytest
 import zmq
@@ -29,7 +31,9 @@ from fleet.bus import (
     observation_from_wire,
     observation_to_wire,
     parse_address,
+    transport,
 )
+from fleet.bus.transport import new_inproc_address
 from fleet.errors import FleetError, MessageError
 from fleet.plugins import (
     Command,
@@ -40,6 +44,7 @@ from fleet.plugins import (
     Observation,
     RobotSpec,
 )
+from fleet.robot import brake_input
 
 # --- test plugins and helpers --------------------------------------------------------------------
 
@@ -91,6 +96,49 @@ def run_rounds(exchange: Exchange, robots: list[str], rounds: int, seed: int = 7
         result = exchange.round(tick, tick * 0.25, obs)
         assert list(result) == sorted(due)
         assert result == {o.robot: expected(o) for o in obs}
+
+
+def serve_in_thread(address: str, controllers: dict, name: str) -> tuple[threading.Thread, list]:
+    """Start a host serving `controllers` in a thread; the list receives it once it is done."""
+    done: list[AgentHost] = []
+
+    def agent() -> None:
+        # zmq sockets belong to one thread: the host is made where it is served.
+        with AgentHost(address, controllers, name=name) as host:
+            host.serve(idle_timeout_s=30)
+        done.append(host)
+
+    worker = threading.Thread(target=agent, daemon=True)
+    worker.start()
+    return worker, done
+
+
+def flood(address: str, first: bytes, frame: bytes, stop: threading.Event) -> tuple:
+    """A thread that sends `first`, then `frame` over and over until `stop` is set.
+
+    Gives up after 5 s; the returned list then holds True, telling the test that what it was
+    waiting for did not end while the flood was going on.
+    """
+    outlasted: list[bool] = []
+
+    def spam() -> None:
+        sock = zmq.Context.instance().socket(zmq.DEALER)
+        sock.connect(address)
+        sock.send(first)
+        give_up = time.monotonic() + 5.0
+        try:
+            while not stop.is_set():
+                if time.monotonic() > give_up:
+                    outlasted.append(True)
+                    return
+                with contextlib.suppress(zmq.Again):  # full queue: the exchange is busy
+                    sock.send(frame, zmq.NOBLOCK)
+        finally:
+            sock.close(linger=0)
+
+    worker = threading.Thread(target=spam, daemon=True)
+    worker.start()
+    return worker, outlasted
 
 
 def serve_echo(address: str, robots: list[str], name: str) -> None:
@@ -300,6 +348,37 @@ def test_encode_refuses_non_finite_values_and_names_where():
         encode(MessageKind.BYE, "a", -1, {"reason": ""})
 
 
+@pytest.mark.parametrize(
+    ("kind", "body", "says"),
+    [
+        (MessageKind.ACT, {}, "ACT from 'a' at tick 1: body: missing field(s) commands"),
+        (MessageKind.ACT, {"commands": [1.0]}, "body.commands = [1.0]: must be a mapping"),
+        (
+            MessageKind.ACT,
+            {"commands": {"r1": (0.0, 0.0)}},
+            "body.commands['r1'] = (0.0, 0.0): must be a fleet.plugins.Command",
+        ),
+        (MessageKind.OBSERVE, {"observations": []}, "body: missing field(s) t"),
+        (
+            MessageKind.OBSERVE,
+            {"t": 0.0, "observations": None},
+            "body.observations = None: must be a list",
+        ),
+        (
+            MessageKind.OBSERVE,
+            {"t": 0.0, "observations": ["r1"]},
+            "body.observations[0] = 'r1': must be a fleet.plugins.Observation",
+        ),
+        (MessageKind.HELLO, {"robots": [], "colour": 1}, "unexpected field(s) ['colour']"),
+        (MessageKind.BYE, None, "BYE from 'a' at tick 1: body = None: must be a mapping"),
+    ],
+)
+def test_encode_refuses_malformed_bodies_naming_the_field(kind, body, says):
+    with pytest.raises(MessageError) as info:
+        encode(kind, "a", 1, body)
+    assert says in str(info.value)
+
+
 def test_command_to_wire_checks_what_plugins_return():
     with pytest.raises(MessageError, match="must be a fleet.plugins.Command"):
         command_to_wire((0.0, 0.0))  # type: ignore[arg-type]
@@ -350,6 +429,30 @@ def test_bad_addresses_are_refused_saying_what_is_allowed(address, says):
     assert says in str(info.value)
     assert repr(address) in str(info.value) and "inproc://<name>" in str(info.value)
     assert isinstance(info.value, ValueError) and isinstance(info.value, MessageError)
+
+
+def test_address_errors_and_the_docs_spell_the_transports_alike():
+    with pytest.raises(AddressError) as info:
+        parse_address("udp://127.0.0.1:5555")
+    allowed = "'inproc://<name>', 'ipc://<path>' or 'tcp://<host>:<port>'"
+    assert allowed in str(info.value)
+    for spelling in ("``inproc://<name>``", "``ipc://<path>``", "``tcp://<host>:<port>``"):
+        assert spelling in transport.__doc__
+
+
+def test_over_inproc_an_agent_may_connect_before_the_exchange_binds():
+    address = new_inproc_address()
+    host = AgentHost(address, {"r1": Echo()}, name="early")
+    with Exchange(address) as ex:
+        ex.add_local(host)
+        ex.wait_for_agents(["r1"])
+        assert ex.round(1, 0.25, [observation("r1", 1)]) == {"r1": expected(observation("r1", 1))}
+
+
+@pytest.mark.parametrize("name", ["", "x" * 256, "\u00e9" * 128, "\0agent"])
+def test_an_agent_name_must_fit_a_zeromq_routing_id(name):
+    with Exchange() as ex, pytest.raises(ValueError, match="at most 255 UTF-8 bytes"):
+        AgentHost(ex.address, {}, name=name)
 
 
 def test_binding_an_address_in_use_is_a_clear_error():
@@ -434,8 +537,9 @@ def test_a_controller_that_raises_gets_its_robot_braking_with_error_status(caplo
                 observation("ok", tick),
             ]
             result = ex.round(tick, 0.0, obs)
-            # |v|/dt = 0.2 is within a_max and cancels vx exactly; vy/dt = -4 is clipped to 0.5.
-            assert result["hot"] == Command(-0.2, 0.5, ControlStatus.ERROR)
+            # Along the line of travel: the faster axis (vy/dt = -4) is held to a_max = 0.5,
+            # so both axes are scaled by 0.5 / 4 = 0.125.
+            assert result["hot"] == Command(-0.025, 0.5, ControlStatus.ERROR)
             assert result["nospec"] == Command(0.0, 0.0, ControlStatus.ERROR)
             assert result["nan"] == Command(0.5, 0.0, ControlStatus.ERROR)
             assert result["ok"] == expected(observation("ok", tick))
@@ -451,6 +555,33 @@ def test_braking_command_never_exceeds_a_max():
     for v in (-10.0, -0.1, 0.0, 0.1, 10.0):
         cmd = braking_command(brake, Observation("r", 0, 0.0, 0.0, 0.0, v, v))
         assert abs(cmd.ax) <= 0.5 and cmd.ax * v <= 0 and cmd.status is ControlStatus.ERROR
+
+
+speeds = st.floats(-5.0, 5.0, allow_nan=False)
+
+
+@settings(max_examples=80, deadline=None)
+@given(vx=speeds, vy=speeds)
+def test_braking_command_brakes_along_the_line_of_travel(vx, vy):
+    spec = RobotSpec(a_max=0.5, period=0.25)
+    cmd = braking_command(with_spec(Exploding(), spec), Observation("r", 0, 0.0, 0.0, 0.0, vx, vy))
+    # The same braking as the engine's, which keeps the robot on its line.
+    assert (cmd.ax, cmd.ay) == tuple(a + 0.0 for a in brake_input(vx, vy, 0.25, 0.5))
+    assert max(abs(cmd.ax), abs(cmd.ay)) <= 0.5 + 1e-12
+    # Acceleration against the velocity, parallel to it: the next velocity keeps its heading.
+    assert cmd.ax * vx + cmd.ay * vy <= 0.0
+    assert math.isclose(cmd.ax * vy, cmd.ay * vx, rel_tol=1e-9, abs_tol=1e-12)
+
+
+def test_braking_command_does_not_bend_the_path():
+    # The reviewer's case: at (1.0, 0.2) m/s per-axis braking stopped vy first and turned the
+    # robot onto the x axis; the next velocity must point the same way as this one.
+    spec = RobotSpec(1.0, 0.5, 0.4, 0.25)
+    cmd = braking_command(
+        with_spec(Exploding(), spec), Observation("r", 0, 0.0, 0.0, 0.0, 1.0, 0.2)
+    )
+    vx, vy = 1.0 + 0.25 * cmd.ax, 0.2 + 0.25 * cmd.ay
+    assert math.isclose(vy / vx, 0.2) and vx < 1.0
 
 
 def test_an_agent_that_says_bye_loses_its_robots_without_stalling_rounds():
@@ -589,6 +720,78 @@ def test_an_agent_that_does_not_answer_in_time_costs_only_its_robots():
             silent.close(linger=0)
 
 
+def test_a_flood_of_stale_answers_does_not_postpone_the_round_timeout(caplog):
+    caplog.set_level(logging.ERROR, logger="fleet.bus")  # thousands of warnings otherwise
+    stop = threading.Event()
+    with Exchange(timeout_s=0.2) as ex:
+        hello = encode(MessageKind.HELLO, "spammer", 0, {"robots": ["r1"]})
+        stale = encode(MessageKind.ACT, "spammer", 0, {"commands": {}})
+        worker, outlasted = flood(ex.address, hello, stale, stop)
+        try:
+            ex.wait_for_agents(["r1"])
+            # The spammer never answers tick 1; the round must give up while it keeps sending.
+            assert ex.round(1, 0.25, [observation("r1", 1)]) == {}
+        finally:
+            stop.set()
+            worker.join(timeout=30)
+        assert not outlasted, "the round only returned once the flood stopped"
+        assert ex.stats["timeouts"] == 1 and ex.stats["commands_missing"] == 1
+        assert ex.stats["stale"] > 0
+
+
+def test_a_flood_of_garbage_does_not_postpone_the_wait_for_agents_timeout(caplog):
+    caplog.set_level(logging.ERROR, logger="fleet.bus")
+    stop = threading.Event()
+    with Exchange() as ex:
+        worker, outlasted = flood(ex.address, b"garbage", b"garbage", stop)
+        try:
+            with pytest.raises(MessageError, match=r"no agent hosts robots \['r1'\]"):
+                ex.wait_for_agents(["r1"], timeout_s=0.2)
+        finally:
+            stop.set()
+            worker.join(timeout=30)
+        assert not outlasted, "wait_for_agents only gave up once the flood stopped"
+        assert ex.stats["messages_rejected"] > 0
+
+
+def test_an_agent_whose_queue_is_full_keeps_its_robots():
+    # A context whose sockets queue at most one message each way: an agent that does not read
+    # fills its queue at once, and the next send fails with EAGAIN, not EHOSTUNREACH.
+    ctx = zmq.Context()
+    ctx.setsockopt(zmq.SNDHWM, 1)
+    ctx.setsockopt(zmq.RCVHWM, 1)
+    behind = None
+    try:
+        with Exchange(context=ctx, timeout_s=0.01) as ex:
+            behind = ctx.socket(zmq.DEALER)
+            behind.setsockopt(zmq.ROUTING_ID, b"behind")
+            behind.connect(ex.address)
+            behind.send(encode(MessageKind.HELLO, "behind", 0, {"robots": ["r1"]}))
+            ex.wait_for_agents(["r1"])
+            tick = 0
+            while ex.stats["send_failures"] == 0 and tick < 20:
+                tick += 1
+                assert ex.round(tick, 0.0, [observation("r1", tick)]) == {}
+            assert ex.stats["send_failures"] == 1
+            assert ex.agents == {"behind": {"r1"}}
+            # Once it has caught up it is asked again.
+            kinds = []
+            while behind.poll(100):
+                kinds.append(decode(behind.recv()).kind)
+            assert kinds[0] is MessageKind.WELCOME and kinds[1:] == [MessageKind.OBSERVE] * (
+                len(kinds) - 1
+            )
+            ex.round(tick + 1, 0.0, [observation("r1", tick + 1)])
+            assert behind.poll(5000)
+            msg = decode(behind.recv())
+            assert (msg.kind, msg.tick) == (MessageKind.OBSERVE, tick + 1)
+            assert ex.stats["send_failures"] == 1
+    finally:
+        if behind is not None:
+            behind.close(linger=0)
+        ctx.destroy(linger=0)
+
+
 def test_the_agent_drops_bad_messages_and_keeps_serving():
     ctx = zmq.Context.instance()
     engine = ctx.socket(zmq.ROUTER)
@@ -634,6 +837,51 @@ def test_the_agent_drops_bad_messages_and_keeps_serving():
         host.close()
         engine.close(linger=0)
     assert host.stats["messages_rejected"] == 5 and host.stats["observations"] == 1
+
+
+def test_after_a_stall_the_agent_answers_only_the_newest_observe():
+    computed: list[int] = []
+
+    class Recording(Echo):
+        def compute(self, obs: Observation) -> Command:
+            computed.append(obs.tick)
+            return super().compute(obs)
+
+    engine = zmq.Context.instance().socket(zmq.ROUTER)
+    address = new_inproc_address()
+    engine.bind(address)
+    host = AgentHost(address, {"r1": Recording()}, name="h")
+    try:
+        peer, _ = engine.recv_multipart()
+        assert peer == b"h"  # the name is the routing id
+
+        def observe(tick: int) -> bytes:
+            body = {"t": 0.0, "observations": [observation("r1", tick)]}
+            return encode(MessageKind.OBSERVE, "engine", tick, body)
+
+        def answered() -> int:
+            assert engine.poll(5000)
+            return decode(engine.recv_multipart()[1], expect=(MessageKind.ACT,)).tick
+
+        welcome = encode(MessageKind.WELCOME, "engine", 0, {"accepted": ["r1"], "rejected": {}})
+        # Three ticks pile up while the host is stalled: the exchange gave up on 1 and 2.
+        for frame in (welcome, observe(1), observe(2), observe(3)):
+            engine.send_multipart([peer, frame])
+        assert host.pump(5000) and host.accepted == {"r1"}
+        assert host.pump(5000)
+        assert answered() == 3
+        assert not engine.poll(50)
+        assert computed == [3] and host.stats["skipped"] == 2 and host.stats["stale"] == 0
+        # What comes after the newest OBSERVE is still handled, in order.
+        for frame in (observe(4), observe(5), encode(MessageKind.BYE, "engine", 5, {"reason": ""})):
+            engine.send_multipart([peer, frame])
+        assert host.pump(5000)
+        assert answered() == 5 and host.finished
+        assert computed == [3, 5] and host.stats["skipped"] == 3
+        assert host.stats["messages_received"] == 7 and host.stats["observations"] == 2
+    finally:
+        host.close()
+        engine.close(linger=0)
 
 
 # --- across threads and processes ----------------------------------------------------------------
@@ -683,6 +931,114 @@ def test_a_host_in_another_process_over_tcp():
                 if p.is_alive():
                     p.kill()
     assert [p.exitcode for p in procs] == [0, 0]
+
+
+def test_an_agent_whose_connection_drops_and_comes_back_keeps_its_robots():
+    blip = threading.Event()
+    done: list[AgentHost] = []
+    with Exchange("tcp://127.0.0.1:*", timeout_s=30) as ex:
+
+        def agent() -> None:
+            with AgentHost(ex.address, {"r1": Echo()}, name="remote") as host:
+                while not host.finished:
+                    if blip.is_set():
+                        blip.clear()
+                        # What ZeroMQ does after a network blip: a new connection, same peer.
+                        host.socket.disconnect(ex.address)
+                        host.socket.connect(ex.address)
+                    host.pump(20)
+            done.append(host)
+
+        worker = threading.Thread(target=agent, daemon=True)
+        worker.start()
+        ex.wait_for_agents(["r1"])
+        assert ex.round(1, 0.25, [observation("r1", 1)]) == {"r1": expected(observation("r1", 1))}
+        monitor = ex.socket.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED)
+        try:
+            blip.set()
+            # The new connection is through its handshake at the exchange's end.
+            assert monitor.poll(30_000)
+        finally:
+            ex.socket.disable_monitor()
+            monitor.close(linger=0)
+        for tick in range(2, 6):
+            obs = observation("r1", tick)
+            assert ex.round(tick, tick * 0.25, [obs]) == {"r1": expected(obs)}
+        assert ex.agents == {"remote": {"r1"}}
+        assert ex.stats["send_failures"] == 0 and ex.stats["timeouts"] == 0
+    # The exchange's BYE reached the agent over its new connection.
+    worker.join(timeout=30)
+    assert not worker.is_alive() and done[0].finished
+
+
+def test_a_slow_local_host_does_not_use_up_the_remote_hosts_timeout(tmp_path):
+    # Over ipc/tcp even a local host's OBSERVE takes a moment to arrive, so the exchange's first
+    # look at the host may find nothing; `Late` makes that happen every round instead of by
+    # chance. The local controller then takes twice timeout_s, which must not count: the
+    # remote host, answering 50 ms after the local one, is in time.
+    local_done = threading.Event()
+
+    class Late(AgentHost):
+        hold = True
+
+        def pump(self, timeout_ms: int | None = 0) -> bool:
+            if self.hold:
+                self.hold = False
+                return False
+            return super().pump(timeout_ms)
+
+    class SlowLocal(Echo):
+        def compute(self, obs: Observation) -> Command:
+            time.sleep(0.6)
+            local_done.set()
+            return super().compute(obs)
+
+    class AfterLocal(Echo):
+        def compute(self, obs: Observation) -> Command:
+            local_done.wait(30)
+            local_done.clear()
+            time.sleep(0.05)
+            return super().compute(obs)
+
+    with Exchange(f"ipc://{tmp_path}/bus.sock", timeout_s=0.3) as ex:
+        local = Late(ex.address, {"local": SlowLocal()}, name="local")
+        ex.add_local(local)
+        worker, done = serve_in_thread(ex.address, {"remote": AfterLocal()}, "remote")
+        ex.wait_for_agents(["local", "remote"])
+        for tick in (1, 2):
+            local.hold = True
+            obs = [observation("local", tick), observation("remote", tick)]
+            assert ex.round(tick, tick * 0.25, obs) == {o.robot: expected(o) for o in obs}
+        assert ex.stats["timeouts"] == 0 and ex.stats["commands_missing"] == 0
+    worker.join(timeout=30)
+    assert not worker.is_alive() and done[0].finished
+
+
+def ipv6_loopback_problem() -> str | None:
+    """Why ``[::1]`` cannot be used here, or None if it can."""
+    if not socket.has_ipv6:
+        return "Python was built without IPv6"
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_STREAM) as s:
+            s.bind(("::1", 0))
+    except OSError as exc:
+        return f"binding ::1 fails ({exc})"
+    return None
+
+
+def test_tcp_over_the_ipv6_loopback():
+    problem = ipv6_loopback_problem()
+    if problem is not None:
+        pytest.skip(f"no IPv6 loopback on this machine: {problem}")
+    robots = ["r1", "r2"]
+    with Exchange("tcp://[::1]:*", timeout_s=30) as ex:
+        assert ex.address.startswith("tcp://[::1]:")
+        worker, done = serve_in_thread(ex.address, {r: Echo() for r in robots}, "v6")
+        ex.wait_for_agents(robots)
+        run_rounds(ex, robots, 20)
+        assert ex.stats["commands_missing"] == 0
+    worker.join(timeout=30)
+    assert not worker.is_alive() and done[0].finished
 
 
 def test_binding_tcp_port_star_reports_the_real_port():

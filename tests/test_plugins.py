@@ -6,6 +6,7 @@ import math
 import sys
 import textwrap
 import warnings
+from collections import namedtuple
 from dataclasses import replace
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from fleet.plugins import (
     load_controller,
     load_dispatcher,
 )
+from fleet.robot import brake_input
 from fleet.testing import ConformanceError, check_controller, check_dispatcher
 
 
@@ -306,6 +308,73 @@ class Broken(PathFollower):
         return replace(super().compute(obs), ax=math.nan)
 
 
+PlanPoint = namedtuple("PlanPoint", "t x y")
+
+
+class NamedPlan(PathFollower):
+    """Plan samples as namedtuples: a tuple to Python, not a [t, x, y] triple to the bus."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        cmd = super().compute(obs)
+        return replace(cmd, plan=tuple(PlanPoint(*sample) for sample in cmd.plan))
+
+
+class NumpyRows(PathFollower):
+    """Plan samples as numpy rows."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        cmd = super().compute(obs)
+        return replace(cmd, plan=tuple(np.array(sample) for sample in cmd.plan))
+
+
+class ArrayPlan(PathFollower):
+    """The whole plan as one (n, 3) numpy array, which the bus cannot even test for emptiness."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        cmd = super().compute(obs)
+        return replace(cmd, plan=np.array(cmd.plan).reshape(-1, 3))
+
+
+class BadReset(PathFollower):
+    """Fails before its first observation."""
+
+    def reset(self, context):  # type: ignore[no-untyped-def]
+        raise KeyError("robot_radius")
+
+
+class Coasting(PathFollower):
+    """Says IDLE when the goal goes but lets a moving robot coast on."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        if obs.goal is None:
+            return Command(0.0, 0.0, ControlStatus.IDLE)
+        return super().compute(obs)
+
+
+class Oblivious(Controller):
+    """The reference's velocities by the clock, blind to the robot's position (an earlier README
+    example): fine until the engine brakes the robot, then it demands a jump back to them."""
+
+    def reset(self, context):  # type: ignore[no-untyped-def]
+        super().reset(context)
+        self.reference, self.goal = None, None
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        spec = self.context.spec
+        moving = obs.vx != 0 or obs.vy != 0
+        if obs.goal is None or (obs.goal != self.goal and moving):
+            ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
+            return Command(ax, ay, ControlStatus.IDLE if obs.goal is None else ControlStatus.OK)
+        if obs.goal != self.goal:
+            self.goal = obs.goal
+            self.reference = self.context.planner.reference(
+                (obs.x, obs.y), obs.goal, dt=spec.period, t0=obs.t
+            )
+        k = min(self.reference.index(obs.t) + 1, self.reference.steps)
+        vx, vy = self.reference.velocities[k]
+        return Command((vx - obs.vx) / spec.period, (vy - obs.vy) / spec.period)
+
+
 @pytest.mark.parametrize(
     ("factory", "rule", "words"),
     [
@@ -314,7 +383,13 @@ class Broken(PathFollower):
         (Beeline, "free-space", "leaves the free space"),
         (Chatty, "idle", "expected IDLE"),
         (Moody, "determinism", "fresh one"),
-        (Broken, "command", "ax = nan is not finite"),
+        (Broken, "command", "command.ax = nan: must be a finite number"),
+        (NamedPlan, "command", "PlanPoint(t=1.0, x=2.0, y=5.0): must be a [t, x, y] triple"),
+        (NumpyRows, "command", "array([1., 2., 5.]): must be a [t, x, y] triple"),
+        (ArrayPlan, "command", "plan of type ndarray): ValueError"),
+        (BadReset, "reset", "reset raised KeyError: 'robot_radius'"),
+        (Coasting, "idle", "still moving at v = (0, -0.894737) after 16 ticks (4 s)"),
+        (Oblivious, "accel-bound", "substituted the engine's braking for the commands of ticks"),
     ],
 )
 def test_check_controller_fails_a_bad_controller_naming_the_rule(
@@ -326,6 +401,21 @@ def test_check_controller_fails_a_bad_controller_naming_the_rule(
     message = str(err.value)
     assert f"rule {rule!r} broken" in message and words in message
     assert factory.__qualname__ in message
+
+
+class LooseTypes(PathFollower):
+    """Numbers as numpy scalars and ints, plan samples as lists, no plan as None: all of which
+    the bus accepts and converts, so the kit accepts them too."""
+
+    def compute(self, obs):  # type: ignore[no-untyped-def]
+        cmd = super().compute(obs)
+        ay = int(cmd.ay) if cmd.ay == int(cmd.ay) else cmd.ay
+        plan = [list(sample) for sample in cmd.plan] or None
+        return Command(np.float64(cmd.ax), ay, cmd.status, plan)  # type: ignore[arg-type]
+
+
+def test_check_controller_accepts_what_the_bus_accepts() -> None:
+    check_controller(LooseTypes)
 
 
 def test_check_controller_reports_options_the_plugin_rejects() -> None:
@@ -371,6 +461,34 @@ class Inventor(GreedyDispatcher):
         return [Assignment("made-up", idle[0].robot)] if idle and jobs else []
 
 
+class RoundRobin(Dispatcher):
+    """Rotates which idle robot goes first with every call: stateful, yet reproducible."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.calls = 0
+
+    def assign(self, jobs, robots, context):  # type: ignore[no-untyped-def]
+        self.calls += 1
+        idle = sorted(r.robot for r in robots if r.idle)
+        if idle:
+            k = self.calls % len(idle)
+            idle = idle[k:] + idle[:k]
+        ordered = sorted(jobs, key=lambda j: (j.released_s, j.id))
+        return [Assignment(j.id, r) for j, r in zip(ordered, idle, strict=False)]
+
+
+class Unrepeatable(RoundRobin):
+    """Rotates by how many instances exist: a second process would dispatch differently."""
+
+    created = 0
+
+    def __init__(self) -> None:
+        super().__init__()
+        type(self).created += 1
+        self.calls = type(self).created
+
+
 @pytest.mark.parametrize(
     ("factory", "rule", "words"),
     [
@@ -379,6 +497,7 @@ class Inventor(GreedyDispatcher):
         (Doubler, "unique", "assigned twice"),
         (Lazy, "progress", "nothing assigned"),
         (Inventor, "open-jobs", "'made-up' is not open"),
+        (Unrepeatable, "deterministic", "given the same cases in the same order"),
     ],
 )
 def test_check_dispatcher_fails_a_bad_dispatcher_naming_the_rule(
@@ -388,6 +507,10 @@ def test_check_dispatcher_fails_a_bad_dispatcher_naming_the_rule(
         check_dispatcher(factory)
     assert err.value.rule == rule
     assert f"rule {rule!r} broken" in str(err.value) and words in str(err.value)
+
+
+def test_check_dispatcher_accepts_a_dispatcher_that_keeps_state_between_calls() -> None:
+    check_dispatcher(RoundRobin)
 
 
 def test_conformance_errors_are_assertion_errors_so_pytest_reports_failures() -> None:

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, given, note, settings
 from hypothesis import strategies as st
 from shapely.geometry import Polygon, box
 
@@ -80,6 +80,12 @@ def random_floor(draw):
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(floor=random_floor(), robots=st.integers(1, 2), seed=st.integers(0, 1000))
 def test_follower_never_leaves_free_space_or_breaks_a_limit(period, floor, robots, seed):
+    spec = floor.spec
+    # Printed with a falsifying example, so a failure can be rebuilt as a map file.
+    note(f"boundary {spec.boundary.wkt}, clearance {spec.clearance}")
+    note("obstacles " + "; ".join(o.polygon.wkt for o in spec.obstacles))
+    note("zones " + "; ".join(f"{z.v_max} {z.polygon.wkt}" for z in spec.zones))
+    note("stations " + "; ".join(f"{s.name} ({s.x!r}, {s.y!r})" for s in spec.stations))
     a, b = floor.station("a"), floor.station("b")
     try:
         trip = PathPlanner(floor, 1.0, 0.5).path((a.x, a.y), (b.x, b.y))

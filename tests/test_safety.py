@@ -63,6 +63,24 @@ def test_touching_the_slow_zone_boundary_is_allowed(hall):
     assert check_steps(hall, t, xy, v, "r1") == []
 
 
+def test_rounding_on_a_boundary_is_forgiven_but_real_entry_is_not(hall):
+    # Leaving the slow zone (x >= 7) at 0.8 m/s nearly parallel to its edge, starting 5e-10 m
+    # inside it: the step overlaps the zone for 2e-6 m of length but only 5e-10 m deep.
+    t, xy, v = steps([(7.0 + 5e-10, 3.0), (7.0 - 1e-4, 3.4)], dt=0.5)
+    assert v[0, 1] == pytest.approx(0.8)
+    assert check_steps(hall, t, xy, v, "r1") == []
+    # The same step starting 1 mm inside the zone really drives through it too fast.
+    t, xy, v = steps([(7.001, 3.0), (7.0 - 2e-4, 3.8)])
+    assert [f.kind for f in check_steps(hall, t, xy, v, "r1")] == ["speed_zone"]
+
+
+def test_a_step_along_a_shared_boundary_obeys_both_sides(hall):
+    t, xy, v = steps([(7.0, 0.5), (7.0, 1.2)])  # on the line x = 7, at 0.7 m/s
+    assert [f.kind for f in check_steps(hall, t, xy, v, "r1")] == ["speed_zone"]
+    t, xy, v = steps([(7.0, 0.5), (7.0, 0.9)])  # 0.4 m/s is fine on both sides
+    assert check_steps(hall, t, xy, v, "r1") == []
+
+
 def test_per_axis_limit(hall):
     # 0.39 m/s on each axis (0.55 m/s overall) is within a per-axis 0.4 m/s box.
     t, xy, v = steps([(8, 1), (8.39, 1.39)])

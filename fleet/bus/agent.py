@@ -7,8 +7,13 @@ never raises on what it receives: malformed, unexpected or stale messages are lo
 returns something that is not a valid `Command`, gets its robot a braking command with
 `ControlStatus.ERROR`, and the host keeps going.
 
+Only the newest OBSERVE matters: the exchange has given up on older ticks by the time a newer
+one is queued, so after a stall the host answers the newest and skips the rest (counted as
+``skipped``) instead of computing every abandoned tick in turn.
+
 In one process the engine pumps local hosts itself (`Exchange.add_local`); in another process
-(or thread) call `AgentHost.serve`, which returns when the exchange says BYE.
+(or thread) call `AgentHost.serve`, which returns when the exchange says BYE. The host's name is
+its ZeroMQ routing id, so the exchange knows it again after a dropped connection comes back.
 """
 
 from __future__ import annotations
@@ -22,9 +27,10 @@ from collections.abc import Mapping
 import zmq
 
 from fleet.bus.schema import Message, MessageKind, command_to_wire, decode, encode
-from fleet.bus.transport import connect_dealer, default_context
+from fleet.bus.transport import ROUTING_ID_MAX, connect_dealer, default_context
 from fleet.errors import MessageError, PluginError
 from fleet.plugins import Command, Controller, ControlStatus, Observation
+from fleet.robot import brake_input
 
 __all__ = ["AgentHost", "AGENT_STATS", "braking_command"]
 
@@ -34,6 +40,7 @@ AGENT_STATS = (
     "messages_sent",
     "messages_rejected",
     "stale",
+    "skipped",  # queued OBSERVEs passed over because a newer one was waiting behind them
     "observations",
     "unknown_robots",
     "controller_errors",
@@ -46,17 +53,19 @@ _names = itertools.count(1)
 
 
 def braking_command(controller: Controller, obs: Observation) -> Command:
-    """The command substituted when `controller` failed: brake as hard as allowed, per axis.
+    """The command substituted when `controller` failed: brake along the line of travel.
 
-    ``a = -clip(v / dt, -a_max, a_max)`` with ``dt`` and ``a_max`` from the robot's spec in the
-    controller's context (set by `Controller.reset`); zero acceleration if there is no context.
+    `fleet.robot.brake_input` with ``dt`` and ``a_max`` from the robot's spec in the
+    controller's context (set by `Controller.reset`): the acceleration points against the
+    velocity, as hard as ``a_max`` allows on the faster axis (stopping within one step if
+    that suffices), so the robot slows down on a straight line instead of veering (braking each
+    axis on its own stops the slower axis first and bends the path). Zero acceleration if there
+    is no context or spec.
     """
     spec = getattr(getattr(controller, "context", None), "spec", None)
     if spec is None or not spec.period > 0:
         return Command(0.0, 0.0, ControlStatus.ERROR)
-    dt, a_max = spec.period, spec.a_max
-    ax = -max(-a_max, min(a_max, obs.vx / dt))
-    ay = -max(-a_max, min(a_max, obs.vy / dt))
+    ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
     # -0.0 would print oddly in logs and traces; a robot at rest gets exactly zero.
     return Command(ax + 0.0, ay + 0.0, ControlStatus.ERROR)
 
@@ -71,8 +80,9 @@ class AgentHost:
     controllers:
         Robot id to its controller, already `reset` with its context.
     name:
-        Name used as ``sender`` and in logs; default ``agent-<pid>-<n>``. Must be unique among
-        the agents of one exchange.
+        Name used as ``sender``, in logs and (UTF-8 encoded, at most 255 bytes) as the socket's
+        routing id; default ``agent-<pid>-<n>``. Must be unique among the agents of one
+        exchange: a second host of the same name takes the first one's connection over.
     context:
         ZeroMQ context; default the process-wide one (inproc needs the exchange's).
     log:
@@ -80,12 +90,16 @@ class AgentHost:
 
     Attributes
     ----------
+    identity:
+        The socket's ZeroMQ routing id: `name`, UTF-8 encoded.
     accepted:
         Robots the exchange accepted (from WELCOME); None until WELCOME arrives.
     rejected:
         Robots the exchange refused, with its reason.
     finished:
         True once the exchange said BYE.
+    last_tick:
+        The newest tick whose OBSERVE this host answered; -1 before the first.
     stats:
         Counters named in `AGENT_STATS`.
     """
@@ -109,9 +123,18 @@ class AgentHost:
                 )
         if name is None:
             name = f"agent-{os.getpid()}-{next(_names)}"
-        elif not isinstance(name, str) or not name:
-            raise ValueError(f"agent host name {name!r} must be a non-empty string")
+        elif (
+            not isinstance(name, str)
+            or not name
+            or name[0] == "\0"
+            or len(name.encode()) > ROUTING_ID_MAX
+        ):
+            raise ValueError(
+                f"agent host name {name!r}: must be a non-empty string of at most"
+                f" {ROUTING_ID_MAX} UTF-8 bytes, not starting with NUL (it is the routing id)"
+            )
         self.name = name
+        self.identity = name.encode()
         self.address = address
         self.context = context if context is not None else default_context()
         self.log = log if log is not None else logging.getLogger("fleet.bus")
@@ -122,17 +145,19 @@ class AgentHost:
         self.exchange: str | None = None
         self.finished = False
         self.closed = False
-        self._last_tick = -1
+        self.last_tick = -1
         self._failed: set[str] = set()
-        self.socket = connect_dealer(self.context, address)
+        self.socket = connect_dealer(self.context, address, self.identity)
         self._send(MessageKind.HELLO, 0, {"robots": list(self.controllers)})
 
     # -- running ----------------------------------------------------------------------------
     def pump(self, timeout_ms: int | None = 0) -> bool:
-        """Handle at most one incoming message, waiting up to `timeout_ms` (None: forever).
+        """Handle one incoming message, waiting up to `timeout_ms` (None: forever).
 
-        Returns True if a message was received (whether handled or dropped), False if none
-        came in time or the host is closed.
+        If it is an OBSERVE, first take in everything queued behind it: only the newest OBSERVE
+        is answered (the older ones are counted as ``skipped``), other messages are handled in
+        their order. Returns True if a message was received (whether handled or dropped),
+        False if none came in time or the host is closed.
         """
         if self.closed:
             return False
@@ -147,21 +172,40 @@ class AgentHost:
             frames = sock.recv_multipart(_NOBLOCK)
         except zmq.Again:
             return False
-        self.stats["messages_received"] += 1
-        if len(frames) != 1:
-            self._reject(f"{len(frames)} frames, expected 1")
+        msg = self._read(frames)
+        if msg is None:
             return True
-        try:
-            msg = decode(frames[0], _EXPECT)
-        except MessageError as exc:
-            self._reject(str(exc))
+        if msg.kind is not MessageKind.OBSERVE:
+            self._handle(msg)
             return True
-        if msg.kind is MessageKind.OBSERVE:
+        # The exchange has given up on an OBSERVE once a newer one is queued: after a stall,
+        # answering each in turn would only keep the host behind.
+        batch = [msg]
+        while sock.getsockopt(_EVENTS) & _POLLIN:
+            try:
+                frames = sock.recv_multipart(_NOBLOCK)
+            except zmq.Again:
+                break
+            queued = self._read(frames)
+            if queued is not None:
+                batch.append(queued)
+        if len(batch) == 1:
             self._observe(msg)
-        elif msg.kind is MessageKind.WELCOME:
-            self._welcome(msg)
-        else:
-            self._bye(msg)
+            return True
+        newest: dict[str, Message] = {}  # by sender: a stranger must not displace the exchange
+        for queued in batch:
+            if queued.kind is MessageKind.OBSERVE:
+                newest[queued.sender] = queued
+        for queued in batch:
+            if queued.kind is MessageKind.OBSERVE and newest[queued.sender] is not queued:
+                self.stats["skipped"] += 1
+                self.log.debug(
+                    "agent %s: skipped OBSERVE for tick %d: a newer one is queued",
+                    self.name,
+                    queued.tick,
+                )
+            else:
+                self._handle(queued)
         return True
 
     def serve(self, idle_timeout_s: float | None = None) -> None:
@@ -190,7 +234,7 @@ class AgentHost:
         if self.closed:
             return
         if not self.finished:
-            self._send(MessageKind.BYE, max(self._last_tick, 0), {"reason": "agent closing"})
+            self._send(MessageKind.BYE, max(self.last_tick, 0), {"reason": "agent closing"})
         self.socket.close()
         self.closed = True
 
@@ -204,6 +248,26 @@ class AgentHost:
         return f"<AgentHost {self.name!r} -> {self.address}: {len(self.controllers)} robots>"
 
     # -- handlers ---------------------------------------------------------------------------
+    def _read(self, frames: list[bytes]) -> Message | None:
+        """The message in `frames`, or None if it was rejected (counted and logged)."""
+        self.stats["messages_received"] += 1
+        if len(frames) != 1:
+            self._reject(f"{len(frames)} frames, expected 1")
+            return None
+        try:
+            return decode(frames[0], _EXPECT)
+        except MessageError as exc:
+            self._reject(str(exc))
+            return None
+
+    def _handle(self, msg: Message) -> None:
+        if msg.kind is MessageKind.OBSERVE:
+            self._observe(msg)
+        elif msg.kind is MessageKind.WELCOME:
+            self._welcome(msg)
+        else:
+            self._bye(msg)
+
     def _welcome(self, msg: Message) -> None:
         accepted = msg.body["accepted"]
         strangers = [r for r in accepted if r not in self.controllers]
@@ -225,16 +289,16 @@ class AgentHost:
                 f"OBSERVE from unknown sender {msg.sender!r} (exchange is {self.exchange!r})"
             )
             return
-        if msg.tick <= self._last_tick:
+        if msg.tick <= self.last_tick:
             self.stats["stale"] += 1
             self.log.warning(
                 "agent %s: dropped stale OBSERVE for tick %d (already at tick %d)",
                 self.name,
                 msg.tick,
-                self._last_tick,
+                self.last_tick,
             )
             return
-        self._last_tick = msg.tick
+        self.last_tick = msg.tick
         commands: dict[str, dict] = {}
         accepted = self.accepted
         for obs in msg.body["observations"]:

@@ -6,6 +6,10 @@ collects one ACT per agent. Local hosts (same process, `Exchange.add_local`) are
 synchronously inside `round`, so a single-process run needs no threads and is deterministic;
 remote hosts (other threads, processes or machines over ipc/tcp) answer on their own.
 
+Local hosts are never timed out: `timeout_s` starts once they have answered, so their compute
+time does not eat into the remote hosts' allowance. From then on the deadline is fixed and
+checked on every pass, however many messages (good or bad) keep arriving.
+
 `round` never raises on what agents send: malformed, unexpected, stale or unknown-sender
 messages are logged on ``fleet.bus``, counted in `Exchange.stats` and dropped; robots without a
 valid answer in time are simply absent from the result (the engine brakes them).
@@ -13,6 +17,7 @@ valid answer in time are simply absent from the result (the engine brakes them).
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import time
@@ -49,6 +54,9 @@ EXCHANGE_STATS = (
 # Plain ints: pyzmq's enum flags cost microseconds per operation on the hot path.
 _EVENTS, _POLLIN, _NOBLOCK = int(zmq.EVENTS), int(zmq.POLLIN), int(zmq.NOBLOCK)
 _EXPECT = (MessageKind.HELLO, MessageKind.ACT, MessageKind.BYE)
+# Messages taken from the ROUTER per pass, so that a flood cannot keep a pass (and the deadline
+# check after it) from ending.
+_BATCH = 256
 
 
 @dataclass(eq=False)
@@ -104,8 +112,9 @@ class Exchange:
         self.stats: dict[str, int] = dict.fromkeys(EXCHANGE_STATS, 0)
         self.closed = False
         self._locals: list[AgentHost] = []
-        self._agents: dict[bytes, _Agent] = {}  # by ZeroMQ routing id
+        self._agents: dict[bytes, _Agent] = {}  # by ZeroMQ routing id (the agent's name)
         self._names: dict[str, _Agent] = {}
+        self._lost: dict[bytes, str] = {}  # agents dropped as unreachable; told BYE on close
         self._owner: dict[str, _Agent] = {}  # robot -> hosting agent
         self._expected: frozenset[str] | None = None
         self._tick = -1
@@ -153,12 +162,14 @@ class Exchange:
         self._expected = frozenset(robots) | (self._expected or frozenset())
         wait = self.timeout_s if timeout_s is None else timeout_s
         deadline = time.monotonic() + wait
+        if not self._expected - self._owner.keys():
+            return
         while True:
+            progressed = self._pump()
             uncovered = self._expected - self._owner.keys()
             if not uncovered:
                 return
-            if self._pump():
-                continue
+            # Checked on every pass: a stream of messages must not postpone the timeout.
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 shown = sorted(uncovered)
@@ -168,7 +179,8 @@ class Exchange:
                     f" {shown[:10]}{more}; connected agents: {sorted(self._names) or 'none'}"
                     " (start their agents, or raise the timeout)"
                 )
-            self._poll(remaining)
+            if not progressed:
+                self._poll(remaining)
 
     # -- the control round trip -----------------------------------------------------------------
     def round(self, tick: int, t: float, observations: Sequence[Observation]) -> dict[str, Command]:
@@ -187,7 +199,8 @@ class Exchange:
         -------
         dict
             Robot id to command, sorted by robot id, for every observed robot whose agent
-            answered validly within `timeout_s`; the others are absent and counted in
+            answered validly in time (local hosts always are; remote ones within `timeout_s`
+            after the local hosts have answered); the others are absent and counted in
             ``stats["commands_missing"]``.
         """
         if self.closed:
@@ -218,27 +231,64 @@ class Exchange:
                 groups[agent] = [observation_to_wire(obs)]
                 robots[agent] = {robot}
         self._pending = {}
+        # Asking for EVENTS makes the ROUTER take in connections made since its last call (a
+        # send may skip that when calls come quickly), so a reconnected agent is routable.
+        self.socket.getsockopt(_EVENTS)
         for agent, wire in groups.items():
             body = {"t": float(t), "observations": wire}
             if self._send(agent, MessageKind.OBSERVE, body):
                 self._pending[agent.identity] = robots[agent]
             else:
                 self._missing += len(robots[agent])
-        self._collect()
+        self._pump_locals(tick)
+        self._collect(time.monotonic() + self.timeout_s)
         self.stats["commands_missing"] += self._missing
         results = self._results
         self._results = {}
         return {r: results[r] for r in sorted(results)}
 
-    def _collect(self) -> None:
-        deadline = None
+    def _pump_locals(self, tick: int) -> None:
+        """Pump until every local host that was sent an OBSERVE has answered it.
+
+        Over ipc/tcp the OBSERVE reaches a local host only after a short trip through the
+        sockets, so this waits for it; the wait gives up only if no local host handles
+        anything for `timeout_s` (the message was lost), never because a controller is slow.
+        """
+        pending = self._pending
+        hosts = [h for h in self._locals if h.identity in pending]
+        if not hosts:
+            return
+        idle_until = time.monotonic() + self.timeout_s
+        while True:
+            if self._pump_hosts():
+                idle_until = time.monotonic() + self.timeout_s
+            self._pump_router()
+            hosts = [
+                h
+                for h in hosts
+                if h.last_tick < tick and not h.closed and h.identity in self._pending
+            ]
+            if not hosts:
+                return
+            remaining = idle_until - time.monotonic()
+            if remaining <= 0:
+                self.log.warning(
+                    "exchange: tick %d: local hosts %s got no OBSERVE within %g s",
+                    tick,
+                    [h.name for h in hosts],
+                    self.timeout_s,
+                )
+                return
+            self._poll(remaining)
+
+    def _collect(self, deadline: float) -> None:
+        """Handle answers until none is outstanding or `deadline` (time.monotonic) passes."""
         while self._pending:
-            if self._pump():
-                continue
-            now = time.monotonic()
-            if deadline is None:
-                deadline = now + self.timeout_s
-            remaining = deadline - now
+            progressed = self._pump()
+            if not self._pending:
+                return
+            # Checked on every pass: a stream of messages must not postpone the timeout.
+            remaining = deadline - time.monotonic()
             if remaining <= 0:
                 late = sorted(r for robots in self._pending.values() for r in robots)
                 agents = sorted(self._agents[i].name for i in self._pending if i in self._agents)
@@ -253,25 +303,36 @@ class Exchange:
                 )
                 self._pending = {}
                 return
-            self._poll(remaining)
+            if not progressed:
+                self._poll(remaining)
 
     # -- receiving ----------------------------------------------------------------------------
     def _pump(self) -> bool:
-        """Let local hosts handle what is waiting, then handle all that reached the ROUTER."""
+        """Let local hosts handle what is waiting, then handle what reached the ROUTER."""
+        progressed = self._pump_hosts()
+        return self._pump_router() or progressed
+
+    def _pump_hosts(self) -> bool:
+        """Let local hosts handle what is waiting; True if any handled something."""
         progressed = False
         for host in self._locals:
             while host.pump(0):
                 progressed = True
+        return progressed
+
+    def _pump_router(self) -> bool:
+        """Handle up to `_BATCH` messages waiting at the ROUTER; True if there were any."""
         sock = self.socket
+        handled = 0
         # Asking for EVENTS is much cheaper than a recv that fails with zmq.Again.
-        while sock.getsockopt(_EVENTS) & _POLLIN:
+        while handled < _BATCH and sock.getsockopt(_EVENTS) & _POLLIN:
             try:
                 frames = sock.recv_multipart(_NOBLOCK)
             except zmq.Again:
                 break
-            progressed = True
+            handled += 1
             self._handle(frames)
-        return progressed
+        return handled > 0
 
     def _poll(self, remaining_s: float) -> None:
         """Sleep until the ROUTER or a local host has something, at most `remaining_s`."""
@@ -330,6 +391,7 @@ class Exchange:
                 agent = _Agent(identity, name)
                 self._agents[identity] = agent
                 self._names[name] = agent
+                self._lost.pop(identity, None)
             for robot in claimed:
                 owner = self._owner.get(robot)
                 if self._expected is not None and robot not in self._expected:
@@ -408,30 +470,45 @@ class Exchange:
     # -- sending ------------------------------------------------------------------------------
     def _send(self, agent: _Agent, kind: MessageKind, body: dict) -> bool:
         raw = encode(kind, self.name, max(self._tick, 0), body)
-        if self._send_raw(agent.identity, raw, agent.name):
+        error = self._send_raw(agent.identity, raw, agent.name)
+        if not error:
             return True
-        # The peer is gone (or hopelessly behind): stop routing its robots to it.
-        self._forget(agent)
+        if error == errno.EHOSTUNREACH:
+            # No connection carries its routing id any more: stop routing its robots to it.
+            self._forget(agent)
+            self._lost[agent.identity] = agent.name
+        # Otherwise (EAGAIN: its queue is full) it is behind but there: it keeps its robots and
+        # only misses this round.
         return False
 
-    def _send_raw(self, identity: bytes, raw: bytes, name: str) -> bool:
+    def _send_raw(self, identity: bytes, raw: bytes, name: str) -> int:
+        """Send one message; 0 on success, else the ZeroMQ errno (counted and logged)."""
         try:
             self.socket.send_multipart((identity, raw), _NOBLOCK)
         except zmq.ZMQError as exc:
             self.stats["send_failures"] += 1
             self.log.warning("exchange: could not send to agent %s: %s", name, exc)
-            return False
+            return exc.errno
         self.stats["messages_sent"] += 1
-        return True
+        return 0
 
     # -- shutting down ------------------------------------------------------------------------
     def close(self) -> None:
-        """Say BYE to every agent, close the local hosts and the socket. Idempotent."""
+        """Say BYE to every agent, close the local hosts and the socket. Idempotent.
+
+        Agents dropped as unreachable are told too, in case they have reconnected since, so
+        that their `AgentHost.serve` returns.
+        """
         if self.closed:
             return
         raw = encode(MessageKind.BYE, self.name, max(self._tick, 0), {"reason": "run finished"})
         for agent in list(self._agents.values()):
             self._send_raw(agent.identity, raw, agent.name)
+        for identity, name in self._lost.items():
+            try:
+                self.socket.send_multipart((identity, raw), _NOBLOCK)
+            except zmq.ZMQError as exc:  # most likely still gone: nothing more to do
+                self.log.debug("exchange: no BYE for lost agent %s: %s", name, exc)
         for host in self._locals:
             while host.pump(0):
                 pass

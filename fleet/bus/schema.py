@@ -128,8 +128,10 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
     Raises
     ------
     MessageError
-        If `kind`, `sender` or `tick` is malformed, a command is invalid, or the body holds a
-        value JSON cannot carry (NaN, infinity, a non-JSON type); the message names where.
+        If `kind`, `sender` or `tick` is malformed, the body lacks a field of its kind or has
+        one too many, ``observations`` is not a list of observations, ``commands`` is not a
+        mapping of robot ids to commands, a command is invalid, or the body holds a value JSON
+        cannot carry (NaN, infinity, a non-JSON type); the message names where.
     """
     if not isinstance(kind, MessageKind):
         raise MessageError(f"cannot encode: kind = {_quote(kind)}: must be a MessageKind")
@@ -137,19 +139,48 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
         raise MessageError(f"cannot encode: sender = {_quote(sender)}: must be a non-empty string")
     if type(tick) is not int or tick < 0:
         raise MessageError(f"cannot encode: tick = {_quote(tick)}: must be an integer >= 0")
+    where = f"cannot encode {kind.name} from {sender!r} at tick {tick}: body"
+    if not isinstance(body, Mapping):
+        raise _fail(where, body, "must be a mapping")
+    fields = _BODY_FIELDS[kind]
+    if body.keys() != fields:
+        _check_fields(dict(body), where, fields)
     if kind is MessageKind.OBSERVE:
-        body = dict(body)
-        body["observations"] = [
-            observation_to_wire(o) if isinstance(o, Observation) else o
-            for o in body["observations"]
-        ]
+        items = body["observations"]
+        if not isinstance(items, list | tuple):
+            raise _fail(f"{where}.observations", items, "must be a list of observations")
+        wire = []
+        for i, o in enumerate(items):
+            if isinstance(o, Observation):
+                wire.append(observation_to_wire(o))
+            elif type(o) is dict:
+                wire.append(o)
+            else:
+                raise _fail(
+                    f"{where}.observations[{i}]",
+                    o,
+                    "must be a fleet.plugins.Observation or its wire dict",
+                )
+        body = {**body, "observations": wire}
     elif kind is MessageKind.ACT:
+        items = body["commands"]
+        if not isinstance(items, Mapping):
+            raise _fail(f"{where}.commands", items, "must be a mapping {robot: command}")
         commands = {}
-        for robot, c in body["commands"].items():
-            try:
-                commands[robot] = command_to_wire(c) if isinstance(c, Command) else c
-            except MessageError as exc:
-                raise MessageError(f"cannot encode ACT for robot {robot!r}: {exc}") from None
+        for robot, c in items.items():
+            if isinstance(c, Command):
+                try:
+                    commands[robot] = command_to_wire(c)
+                except MessageError as exc:
+                    raise MessageError(f"cannot encode ACT for robot {robot!r}: {exc}") from None
+            elif type(c) is dict:
+                commands[robot] = c
+            else:
+                raise _fail(
+                    f"{where}.commands[{robot!r}]",
+                    c,
+                    "must be a fleet.plugins.Command or its wire dict",
+                )
         body = {**body, "commands": commands}
     envelope = {
         "version": SCHEMA_VERSION,
@@ -393,6 +424,14 @@ def _bye_body(body: dict[str, Any], where: str) -> dict[str, Any]:
         raise _fail(f"{where}: body.reason", reason, "must be a string")
     return {"reason": reason}
 
+
+_BODY_FIELDS = {
+    MessageKind.HELLO: _HELLO_FIELDS,
+    MessageKind.WELCOME: _WELCOME_FIELDS,
+    MessageKind.OBSERVE: _OBSERVE_FIELDS,
+    MessageKind.ACT: _ACT_FIELDS,
+    MessageKind.BYE: _BYE_FIELDS,
+}
 
 _BODY_READERS = {
     MessageKind.HELLO: _hello_body,

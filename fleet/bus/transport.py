@@ -6,13 +6,20 @@ transports are supported, all with the same classes:
 ``inproc://<name>``
     Within one process (and one `zmq.Context`); the default, used with synchronous pumping.
 ``ipc://<path>``
-    Between processes on one machine, through a Unix socket file (path at most 107 bytes).
+    Between processes on one machine, through a Unix socket file (path at most 107 bytes); an
+    absolute path gives three slashes, ``ipc:///tmp/fleet.sock``.
 ``tcp://<host>:<port>``
-    Between machines. When binding, the port may be ``*`` (or 0) to let the system choose;
+    Between machines. The host is a name, an IPv4 address or a bracketed IPv6 address
+    (``tcp://[::1]:5555``). When binding, the port may be ``*`` (or 0) to let the system choose;
     the chosen one is reported by `bind_router`.
 
-inproc only works when both ends share one `zmq.Context` and the ROUTER binds first; use
-`default_context()` (the process-wide ``zmq.Context.instance()``) on both sides.
+inproc only works when both ends share one `zmq.Context`: use `default_context()` (the
+process-wide ``zmq.Context.instance()``) on both sides. Either end may come first (libzmq
+queues a connect until the bind arrives; checked with libzmq 4.3.5).
+
+Every DEALER carries a fixed routing id (the agent's name), so the ROUTER knows an agent again
+after ZeroMQ re-establishes a dropped connection; the ROUTER hands the id over to the newest
+connection (``ROUTER_HANDOVER``).
 """
 
 from __future__ import annotations
@@ -35,12 +42,16 @@ __all__ = [
     "bind_router",
     "connect_dealer",
     "LINGER_MS",
+    "ROUTING_ID_MAX",
 ]
 
 #: How long a closed socket keeps trying to deliver queued messages (e.g. a final BYE).
 LINGER_MS = 1000
 
-_ALLOWED = "use 'inproc://<name>', 'ipc:///<path>' or 'tcp://<host>:<port>'"
+#: Longest routing id ZeroMQ accepts (bytes); an agent's name, UTF-8 encoded, is its routing id.
+ROUTING_ID_MAX = 255
+
+_ALLOWED = "use 'inproc://<name>', 'ipc://<path>' or 'tcp://<host>:<port>'"
 # sockaddr_un.sun_path holds 108 bytes including the terminating NUL.
 _IPC_PATH_MAX = 107
 _HOST = re.compile(r"^(\*|\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+)$")
@@ -60,6 +71,11 @@ class Address:
 
     transport: str
     target: str
+
+    @property
+    def ipv6(self) -> bool:
+        """Whether this is tcp to a bracketed IPv6 literal (the socket needs ``zmq.IPV6``)."""
+        return self.transport == "tcp" and self.target.startswith("[")
 
     def __str__(self) -> str:
         return f"{self.transport}://{self.target}"
@@ -134,8 +150,9 @@ def default_context() -> zmq.Context:
 def bind_router(context: zmq.Context, address: str) -> tuple[zmq.Socket, str]:
     """A ROUTER socket bound to `address`, and the address actually bound (port resolved).
 
-    The socket reports unroutable sends (``ROUTER_MANDATORY``) instead of dropping them, so the
-    exchange notices agents that have gone.
+    The socket reports unroutable sends (``ROUTER_MANDATORY``: EHOSTUNREACH for an unknown
+    peer, EAGAIN for a full queue) instead of dropping them, so the exchange notices agents that
+    have gone; a reconnecting agent takes its routing id over (``ROUTER_HANDOVER``).
 
     Raises
     ------
@@ -146,6 +163,10 @@ def bind_router(context: zmq.Context, address: str) -> tuple[zmq.Socket, str]:
     sock = context.socket(zmq.ROUTER)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
+    sock.setsockopt(zmq.ROUTER_HANDOVER, 1)
+    if parsed.ipv6:
+        # Without it libzmq resolves only IPv4 and binding '[::1]' fails with "No such device".
+        sock.setsockopt(zmq.IPV6, 1)
     try:
         sock.bind(str(parsed))
     except zmq.ZMQError as exc:
@@ -155,18 +176,43 @@ def bind_router(context: zmq.Context, address: str) -> tuple[zmq.Socket, str]:
     return sock, endpoint.decode() if isinstance(endpoint, bytes) else str(endpoint)
 
 
-def connect_dealer(context: zmq.Context, address: str) -> zmq.Socket:
-    """A DEALER socket connected to `address` (connecting succeeds before the peer is up,
-    except for inproc, where the ROUTER must already be bound in the same context).
+def connect_dealer(
+    context: zmq.Context, address: str, routing_id: bytes | None = None
+) -> zmq.Socket:
+    """A DEALER socket connected to `address` (connecting succeeds before the peer is up).
+
+    Parameters
+    ----------
+    context:
+        The ZeroMQ context (for inproc, the ROUTER's).
+    address:
+        The ROUTER's address.
+    routing_id:
+        The identity the ROUTER sees, kept across reconnections: 1 to `ROUTING_ID_MAX` bytes,
+        not starting with a zero byte (ZeroMQ reserves those for ids it makes up). None lets
+        ZeroMQ pick a fresh one per connection.
 
     Raises
     ------
     AddressError
         If the address is malformed or cannot be connected to.
+    ValueError
+        If `routing_id` breaks the rules above.
     """
     parsed = parse_address(address, bind=False)
+    if routing_id is not None and not (
+        isinstance(routing_id, bytes) and 0 < len(routing_id) <= ROUTING_ID_MAX and routing_id[0]
+    ):
+        raise ValueError(
+            f"bus routing id {routing_id!r}: must be 1 to {ROUTING_ID_MAX} bytes,"
+            " not starting with a zero byte"
+        )
     sock = context.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
+    if routing_id is not None:
+        sock.setsockopt(zmq.ROUTING_ID, routing_id)
+    if parsed.ipv6:
+        sock.setsockopt(zmq.IPV6, 1)
     try:
         sock.connect(str(parsed))
     except zmq.ZMQError as exc:

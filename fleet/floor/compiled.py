@@ -91,6 +91,7 @@ class Floor:
         self.free_space = free_space
         self.regions: list[Region] = list(regions)
         self._tree = STRtree([r.polygon for r in self.regions])
+        self._cores: dict[float, np.ndarray] = {}
         shapely.prepare(self.free_space)
         self.graph: nx.Graph = _adjacency(self.regions, self._tree)
 
@@ -148,6 +149,21 @@ class Floor:
         grown = self.free_space.buffer(TOLERANCE, join_style="mitre")
         shapely.prepare(grown)
         return grown
+
+    def region_cores(self, depth: float) -> np.ndarray:
+        """Each region's polygon shrunk by `depth` metres (object array, cached per depth).
+
+        What a step must reach to count as entering a region, so that rounding on the boundary
+        does not (`fleet.safety`).
+        """
+        cores = self._cores.get(depth)
+        if cores is None:
+            cores = np.array(
+                [r.polygon.buffer(-depth, join_style="mitre") for r in self.regions], dtype=object
+            )
+            shapely.prepare(cores)
+            self._cores[depth] = cores
+        return cores
 
     @property
     def tree(self) -> STRtree:
