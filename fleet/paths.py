@@ -8,8 +8,9 @@ Two layers, both cached per planner:
   may go around a slow zone when that is quicker.
 - `PathPlanner.reference` turns that polyline into a `Reference`: samples of the paper's discrete
   double integrator (``p[k+1] = p[k] + dt*v[k]``) from rest at the start to rest at the goal.
-  Every corner and every speed-limit change falls exactly on a sample, and a HiGHS LP picks the
-  speeds, so the reference meets the project's step semantics exactly: each step's chord stays in
+  Every corner and every speed-limit change falls exactly on a sample (very short stretches are
+  merged into their slower neighbour, which is conservative), and a HiGHS LP picks the speeds,
+  so the reference meets the project's step semantics exactly: each step's chord stays in
   the free space, every axis of ``v[k]`` respects the lowest limit of every region the chord
   overlaps with positive length, and ``|v[k+1] - v[k]| <= a_max*dt`` per axis.
 """
@@ -53,6 +54,8 @@ MAX_PORTAL_NODES = 7
 REFINE_SWEEPS = 3
 #: Length (m) to which a waypoint's place on its portal is refined.
 REFINE_RESOLUTION = 1e-3
+#: Above this many steps the speed LP's second phase (calmest speeds) is skipped.
+CALM_MAX_STEPS = 4000
 #: Rounds of adding steps to pieces the speed LP cannot cover before stopping at every corner.
 MAX_ROUNDS = 8
 
@@ -884,12 +887,15 @@ class PathPlanner:
         if np.any(short > 1e-9 * np.maximum(1.0, target * dt)):
             return None, [float(s) if s > 1e-9 else 0.0 for s in short]
 
-        # Phase 2: exact coverage, calmest speeds.
-        h.changeRowsBounds(J, np.arange(J, dtype=np.int32), target, target)
-        h.changeColsCost(nvar, cols, np.concatenate([np.zeros(M), np.ones(n_tv)]))
-        h.run()
-        if h.getModelStatus() == highspy.HighsModelStatus.kOptimal:
-            x = np.asarray(h.getSolution().col_value[:M], dtype=float)
+        # Phase 2: exact coverage, calmest speeds. Only a refinement (phase 1 is already a
+        # feasible timing) and it grows about with the square of the steps, so long, finely
+        # sampled trips skip it.
+        if M <= CALM_MAX_STEPS:
+            h.changeRowsBounds(J, np.arange(J, dtype=np.int32), target, target)
+            h.changeColsCost(nvar, cols, np.concatenate([np.zeros(M), np.ones(n_tv)]))
+            h.run()
+            if h.getModelStatus() == highspy.HighsModelStatus.kOptimal:
+                x = np.asarray(h.getSolution().col_value[:M], dtype=float)
         sigma = np.clip(x, 0.0, ub)
         # Cover each piece exactly (removes the solver's last rounding in the sums).
         covered = np.bincount(piece_of, weights=sigma, minlength=J)
@@ -906,17 +912,14 @@ class PathPlanner:
         vel = np.zeros((K + 1, 2))
         pos[0] = pos[1] = pieces[0].p0
         k = 1
-        i = 0
         for piece, n in zip(pieces, counts, strict=True):
-            for m in range(n):
-                if m == n - 1:
-                    vel[k] = (piece.p1 - pos[k]) / dt
-                    pos[k + 1] = piece.p1
-                else:
-                    vel[k] = sigma[i] * piece.u
-                    pos[k + 1] = pos[k] + dt * vel[k]
-                k += 1
-                i += 1
+            # Place the samples by their cumulative share of the piece, not by adding steps up:
+            # summing thousands of small steps would pile the rounding onto the last one.
+            share = np.cumsum(sigma[k - 1 : k - 1 + n])
+            pos[k + 1 : k + 1 + n] = piece.p0 + np.outer(share / share[-1], piece.p1 - piece.p0)
+            pos[k + n] = piece.p1
+            vel[k : k + n] = (pos[k + 1 : k + 1 + n] - pos[k : k + n]) / dt
+            k += n
         return _make_reference(dt, pos, vel, path)
 
     def _verify(self, ref: Reference) -> None:

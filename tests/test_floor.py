@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from shapely.geometry import MultiPolygon, Polygon, box
 
 from fleet.floor import compile_floor, convex_pieces, load_floor, parse_spec
-from fleet.floor.build import speed_cells
+from fleet.floor.build import free_space, speed_cells
+from fleet.safety import check_steps
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 SHIPPED = ["paper_case3.toml", "bump_track.toml", "shop_floor.toml"]
@@ -57,6 +58,11 @@ def shipped(request):
 
 def test_shipped_map_regions_tile_the_free_space(shipped):
     assert_tiles([r.polygon for r in shipped.regions], shipped.free_space)
+    # ... which is the configuration space of the map (boundary shrunk, machines grown) up to
+    # the 1e-6 m grid the set operations snap to.
+    cspace = free_space(shipped.spec)
+    assert shipped.free_space.symmetric_difference(cspace).area < 1e-6
+    assert shipped.free_space.hausdorff_distance(cspace) < 2e-6
 
 
 def test_shipped_map_hrep_agrees_with_shapely(shipped):
@@ -300,3 +306,49 @@ def test_pieces_of_speed_cells_do_not_overlap_across_cells():
     for a, b in itertools.combinations(range(len(polys)), 2):
         if polys[a].intersects(polys[b]):
             assert polys[a].intersection(polys[b]).area < 1e-9
+
+
+def test_every_region_edge_lies_in_the_free_space_the_checker_uses():
+    # Zone edges crossing a slanted machine edge create vertices that the 1e-6 m grid moves;
+    # the free space must be exactly what the regions cover, or a controller hugging a region's
+    # A, b would be charged with obstacle incursions.
+    spec = parse_spec(
+        {
+            "floor": {"name": "t", "rect": [0, 0, 20, 20], "default_v_max": 1.0, "clearance": 0.3},
+            "obstacles": [{"name": "m", "polygon": [[5.1, 5.3], [15.7, 6.9], [9.3, 13.1]]}],
+            "zones": [
+                {"name": f"z{i}", "rect": [0, 0, x, 20], "v_max": v}
+                for i, (x, v) in enumerate([(7.77, 0.5), (11.13, 0.7), (13.3, 0.9)])
+            ],
+        },
+        "t.toml",
+    )
+    floor = compile_floor(spec)
+    vertices = [p for r in floor.regions for p in r.polygon.exterior.coords]
+    assert max(floor.free_space.distance(shapely.Point(p)) for p in vertices) == 0.0
+    for r in floor.regions:
+        ring = np.asarray(r.polygon.exterior.coords)
+        for a, b in zip(ring[:-1], ring[1:], strict=True):
+            xy = np.linspace(a, b, 5)
+            v = np.tile((b - a) / 4 / 10.0, (5, 1))  # slow enough for any zone
+            v[-1] = 0
+            assert check_steps(floor, np.arange(5) * 10.0, xy, v, "edge") == []
+
+
+def test_a_loaded_floor_is_read_only_and_named_by_its_resolved_path():
+    floor = load_floor(MAPS / "paper_case3.toml")
+    assert floor.source == str((MAPS / "paper_case3.toml").resolve())
+    with pytest.raises(ValueError, match="read-only"):
+        floor.regions[0].b[0] = 0.0
+    with pytest.raises(nx.NetworkXError, match="Frozen"):
+        floor.graph.add_edge(0, 1)
+
+
+def test_v_max_at_a_shared_boundary_takes_each_axis_lowest():
+    floor = compile_floor(
+        spec_of('[[zones]]\nname = "z"\nrect = [0, 0, 5, 10]\nv_max = [0.4, 2.0]\n', default=1.0)
+    )
+    assert floor.v_max_at(2, 5) == (0.4, 2.0)
+    assert floor.v_max_at(5, 5) == (0.4, 1.0)  # on the zone's edge: both sides apply
+    assert floor.v_max_at(8, 5) == (1.0, 1.0)
+    assert floor.v_max_at(30, 5) is None

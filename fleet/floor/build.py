@@ -56,7 +56,8 @@ def load_floor(path: str | Path, *, cache: bool = True) -> Floor:
     key = (str(resolved), st.st_mtime_ns, st.st_size)
     if cache and key in _cache:
         return _cache[key]
-    floor = compile_floor(load_spec(path))
+    # The resolved path names the floor, so a cached floor never carries a stale relative path.
+    floor = compile_floor(load_spec(resolved))
     if cache:
         _cache[key] = floor
     return floor
@@ -68,9 +69,10 @@ def compile_floor(spec: FloorSpec) -> Floor:
     Returns
     -------
     Floor
-        Regions are convex, pairwise interior-disjoint and cover the free space (up to slivers
-        under 1e-9 m^2); each carries the limit of the speed cell it came from and the name of
-        the zone that set it (None for the floor default).
+        Regions are convex and pairwise interior-disjoint; their union is the floor's
+        `free_space` (the configuration space up to grid snapping). Each carries the limit of
+        the speed cell it came from and the name of the zone that set it (None for the
+        floor default).
 
     Raises
     ------
@@ -91,7 +93,10 @@ def compile_floor(spec: FloorSpec) -> Floor:
     for v_max, cell in speed_cells(free, spec.zones, spec.default_v_max):
         for piece in convex_pieces(cell):
             pieces.append((piece, v_max, _zone_name(piece, v_max, spec.zones)))
-    floor = Floor.from_regions(spec, pieces, free)
+    # The free space is the union of the regions themselves: intersecting cells with zones on
+    # the grid can move a vertex off the original free-space edge by up to ~1e-6 m, and the
+    # safety checker must judge against exactly what the regions (and an MPC's A, b) allow.
+    floor = Floor.from_regions(spec, pieces)
     for i, s in enumerate(spec.stations):
         if floor.locate(s.x, s.y) is None:
             raise MapError(

@@ -55,11 +55,6 @@ class Region:
         A, b = self.A, self.b
         return bool(np.all(A[:, 0] * x + A[:, 1] * y <= b + tol))
 
-    @property
-    def speed(self) -> float:
-        """The smaller of the two axis limits (a conservative scalar speed)."""
-        return min(self.v_max)
-
 
 def halfspaces(polygon: Polygon) -> tuple[np.ndarray, np.ndarray]:
     """H-representation (A, b) of a convex polygon, with unit outward normals as rows of A."""
@@ -93,7 +88,7 @@ class Floor:
         self._tree = STRtree([r.polygon for r in self.regions])
         self._cores: dict[float, np.ndarray] = {}
         shapely.prepare(self.free_space)
-        self.graph: nx.Graph = _adjacency(self.regions, self._tree)
+        self.graph: nx.Graph = nx.freeze(_adjacency(self.regions, self._tree))
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
@@ -112,6 +107,8 @@ class Floor:
         for i, (poly, v_max, zone) in enumerate(pieces):
             poly = shapely.orient_polygons(poly)
             A, b = halfspaces(poly)
+            A.setflags(write=False)  # floors are shared (cached): nobody may change a region
+            b.setflags(write=False)
             regions.append(Region(i, poly, A, b, (float(v_max[0]), float(v_max[1])), zone))
             polys.append(poly)
         if free_space is None:
@@ -170,14 +167,10 @@ class Floor:
         """Spatial index over the region polygons (item i is `regions[i]`)."""
         return self._tree
 
-    @property
-    def max_speed(self) -> float:
-        """The highest per-axis limit anywhere on the floor."""
-        return max(max(r.v_max) for r in self.regions)
-
     # -- queries ------------------------------------------------------------------------------
     def locate(self, x: float, y: float, tol: float = TOLERANCE) -> int | None:
-        """Index of a region containing (x, y), preferring the slowest on shared boundaries."""
+        """Index of a region containing (x, y); on a shared boundary, the one with the lowest
+        ``min(v_max)``."""
         best: int | None = None
         for i in self._tree.query(
             shapely.points(x, y).buffer(tol) if tol > 0 else shapely.points(x, y)
@@ -214,18 +207,18 @@ class Floor:
         return self.locate(x, y, tol) is not None
 
     def v_max_at(self, x: float, y: float) -> tuple[float, float] | None:
-        """Per-axis limit at (x, y) (the lowest where regions meet), None outside free space."""
-        i = self.locate(x, y)
-        return None if i is None else self.regions[i].v_max
+        """Per-axis limit at (x, y), None outside the free space.
 
-    def regions_touching(self, geometry: shapely.Geometry) -> list[int]:
-        """Indices of regions whose interiors `geometry` overlaps (positive length or area)."""
-        out = []
-        for i in self._tree.query(geometry, predicate="intersects"):
-            inter = self.regions[int(i)].polygon.intersection(geometry)
-            if inter.length > TOLERANCE or inter.area > 0:
-                out.append(int(i))
-        return sorted(out)
+        On a boundary shared by several regions each axis gets its lowest limit among them.
+        """
+        limits = [
+            r.v_max
+            for i in self._tree.query(shapely.points(x, y), predicate="dwithin", distance=TOLERANCE)
+            if (r := self.regions[int(i)]).contains(x, y)
+        ]
+        if not limits:
+            return None
+        return (min(v[0] for v in limits), min(v[1] for v in limits))
 
     def __repr__(self) -> str:
         return f"<Floor {self.name!r} from {self.source}: {len(self.regions)} regions>"
