@@ -14,10 +14,9 @@ import math
 import numbers
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from fleet.errors import NoPathError
 from fleet.plugins import Command, Controller, ControllerContext, ControlStatus, Observation
+from fleet.robot import brake_input, clip
 
 if TYPE_CHECKING:
     from fleet.paths import PathPlanner, Reference
@@ -182,8 +181,8 @@ class PathFollower(Controller):
             tx += self.gain / dt * ex
             ty += self.gain / dt * ey
         bx, by = abs(vxs[nxt]), abs(vys[nxt])
-        ux = _clip((_clip(tx, bx) - obs.vx) / dt, a_max)
-        uy = _clip((_clip(ty, by) - obs.vy) / dt, a_max)
+        ux = clip((clip(tx, bx) - obs.vx) / dt, a_max)
+        uy = clip((clip(ty, by) - obs.vy) / dt, a_max)
         stride = self._plan_stride
         if k % stride:
             # The plan is sent about once per PLAN_SAMPLE; between, the last one still holds.
@@ -197,16 +196,15 @@ class PathFollower(Controller):
         dt, a_max = self.context.spec.period, self.context.spec.a_max
         if obs.vx == 0.0 and obs.vy == 0.0:
             return Command(0.0, 0.0, status)
-        v = np.array([obs.vx, obs.vy])
-        v_next = _braked(v, a_max * dt)
-        u = np.clip((v_next - v) / dt, -a_max, a_max)
+        ax, ay = brake_input(obs.vx, obs.vy, dt, a_max)
         # The predicted stop, so neighbours and the replay see where the robot will halt.
-        t, p, w = obs.t, np.array([obs.x, obs.y]), v
-        plan = [(t, obs.x, obs.y)]
-        while np.any(w) and t - obs.t < PLAN_HORIZON:
-            t, p, w = t + dt, p + dt * w, _braked(w, a_max * dt)
-            plan.append((t, float(p[0]), float(p[1])))
-        return Command(float(u[0]), float(u[1]), status, tuple(plan))
+        t, x, y, vx, vy = obs.t, obs.x, obs.y, obs.vx, obs.vy
+        plan = [(t, x, y)]
+        while max(abs(vx), abs(vy)) > REST_SPEED and t - obs.t < PLAN_HORIZON:
+            bx, by = brake_input(vx, vy, dt, a_max)
+            t, x, y, vx, vy = t + dt, x + dt * vx, y + dt * vy, vx + dt * bx, vy + dt * by
+            plan.append((t, x, y))
+        return Command(ax, ay, status, tuple(plan))
 
     # -- helpers --------------------------------------------------------------------------------
     def _off_track(self, obs: Observation) -> bool:
@@ -225,16 +223,3 @@ class PathFollower(Controller):
 
             self._planners[cap] = PathPlanner(self.context.floor, v_max=cap, a_max=spec.a_max)
         return self._planners[cap]
-
-
-def _clip(value: float, bound: float) -> float:
-    return bound if value > bound else -bound if value < -bound else value
-
-
-def _braked(v: np.ndarray, dv: float) -> np.ndarray:
-    """`v` reduced by at most `dv` per axis, keeping its direction (so the robot stays on the
-    straight line it was driving along), and exactly zero once within `dv` of rest."""
-    fastest = float(np.max(np.abs(v)))
-    if fastest <= dv:
-        return np.zeros(2)
-    return v * (1.0 - dv / fastest)
