@@ -275,3 +275,14 @@ def test_the_engine_keeps_each_robots_latest_plan(scenario_file):
         times = [p[0] for p in robot.plan]
         assert len(times) > 1 and times == sorted(times)
         assert times[0] in world.recorder.trajectories[robot.id].t  # sent at one of its ticks
+
+
+def test_bad_plugin_options_name_the_scenario_file(scenario_file):
+    from fleet.errors import PluginError
+
+    sc = replace(load_scenario(scenario_file), controller=PluginChoice("follower", {"gain": 5}))
+    with pytest.raises(PluginError) as err:
+        World(sc)
+    message = str(err.value)
+    assert message.startswith(f"{scenario_file}: [controller] name = 'follower'")
+    assert "gain = 5" in message

@@ -26,7 +26,7 @@ import simpy
 from fleet.bus import AgentHost, Exchange
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
-from fleet.errors import FleetError, ScenarioError
+from fleet.errors import FleetError, PluginError, ScenarioError
 from fleet.floor import Floor, load_floor
 from fleet.paths import PathPlanner
 from fleet.plugins import (
@@ -135,12 +135,12 @@ class World:
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
         self._check_reachable(homes)
-        self.dispatcher = load_dispatcher(scenario.dispatcher.name, scenario.dispatcher.options)
+        self.dispatcher = self._plugin("dispatcher", load_dispatcher)
         self.stats: dict[str, int] = defaultdict(int)
 
         controllers = {}
         for rid, robot in self.robots.items():
-            c = load_controller(scenario.controller.name, scenario.controller.options)
+            c = self._plugin("controller", load_controller)
             c.reset(ControllerContext(rid, robot.spec, self.floor, self.planner_for(robot.spec)))
             controllers[rid] = c
         self.exchange = Exchange(scenario.bus_address)
@@ -155,6 +155,17 @@ class World:
         self._idle_since: dict[str, float] = {}
 
     # -- set-up ---------------------------------------------------------------------------------
+    def _plugin(self, kind: str, loader: Callable[..., Any]) -> Any:
+        """Load the scenario's `kind` plugin; a failure names the scenario file and its table."""
+        choice = getattr(self.scenario, kind)
+        try:
+            return loader(choice.name, choice.options)
+        except PluginError as exc:
+            raise PluginError(
+                f"{self.scenario.source}: [{kind}] name = {choice.name!r}, "
+                f"options = {choice.options!r}: {exc}"
+            ) from None
+
     def planner_for(self, spec: RobotSpec) -> PathPlanner:
         """The shared path planner for robots with `spec`'s speed and acceleration limits."""
         key = (spec.v_max, spec.a_max)
