@@ -50,6 +50,13 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, help="random seed")
     run.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<seed>)")
     run.add_argument("--quiet", action="store_true", help="no progress bar or table")
+    run.add_argument(
+        "--no-figures",
+        dest="figures",
+        action="store_false",
+        help="skip trajectory.png and speed.png (they take about a second per simulated hour "
+        "of a few robots)",
+    )
     run.set_defaults(handler=_cmd_run)
 
     plugins = sub.add_parser("plugins", help="list the controller and dispatcher plugins found")
@@ -94,7 +101,11 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
         ) as bar:
             task = bar.add_task("run", total=scenario.duration_s, now=0.0)
             result = world.run(lambda now: bar.update(task, completed=now, now=now))
-    world.recorder.write(out, result.summary, world.floor, result.safety.examples)
+    world.recorder.write(out, result.summary, world.floor, result.safety.examples, world.cap_rows())
+    if args.figures:
+        from fleet.plots import save_run_figures
+
+        save_run_figures(out, world.floor)
     if not args.quiet:
         _kpi_table(console, result.summary)
         console.print(f"run directory: {out}")
@@ -120,9 +131,21 @@ def _kpi_table(console: Console, s: dict) -> None:
         ("distance driven", f"{s['distance_m']:.1f} m"),
         ("violations: obstacle", str(v["obstacle"])),
         ("violations: zone speed", str(v["speed_zone"])),
+        ("violations: print speed", str(v["print_speed"])),
         ("violations: collision", str(v["collision"])),
         ("digest", s["digest"][:16]),
     ]
+    solver = s["solver"]
+    if solver["steps"]:
+        rows[-1:-1] = [
+            (
+                "solver median / p95 / max",
+                f"{solver['median_ms']:.1f} / {solver['p95_ms']:.1f} / {solver['max_ms']:.1f} ms",
+            ),
+            ("solver fallbacks", str(solver["fallbacks"])),
+        ]
+    for robot, at in (s.get("arrivals") or {}).items():
+        rows.insert(-1, (f"arrival {robot}", "-" if at is None else f"{at:.1f} s"))
     for name, value in rows:
         t.add_row(name, value)
     console.print(t)

@@ -38,7 +38,10 @@ if TYPE_CHECKING:
 __all__ = [
     "CONTROLLER_GROUP",
     "DISPATCHER_GROUP",
+    "CAP_LOOKAHEAD_S",
     "ControlStatus",
+    "SolverOutcome",
+    "SolveReport",
     "RobotSpec",
     "Neighbour",
     "Observation",
@@ -60,6 +63,10 @@ __all__ = [
 CONTROLLER_GROUP = "fleet.controllers"
 DISPATCHER_GROUP = "fleet.dispatchers"
 
+#: How far ahead (s) of its time an observation lists the print's speed-cap pieces: a
+#: controller whose horizon reaches further must treat what lies beyond as unknown.
+CAP_LOOKAHEAD_S = 60.0
+
 
 class ControlStatus(enum.Enum):
     """What a controller did this tick."""
@@ -73,6 +80,47 @@ class ControlStatus(enum.Enum):
     backup."""
     ERROR = "error"
     """The controller raised; the engine substituted braking. Set by the agent, not by plugins."""
+
+
+class SolverOutcome(enum.Enum):
+    """How an optimising controller's solve of one step ended (reported in `SolveReport`)."""
+
+    OPTIMAL = "optimal"
+    """Solved to optimality (within the solver's gap tolerance)."""
+    FEASIBLE = "feasible"
+    """Stopped at a limit (time, nodes) with a feasible solution, which is used."""
+    NO_SOLUTION = "no_solution"
+    """Stopped at a limit without any feasible solution: the controller fell back."""
+    INFEASIBLE = "infeasible"
+    """The problem has no solution (e.g. the state left the modelled set): fell back."""
+    ERROR = "error"
+    """The solver failed (numerical trouble, exception): fell back."""
+
+    @property
+    def usable(self) -> bool:
+        """Whether the step's command came from the solver's solution."""
+        return self in (SolverOutcome.OPTIMAL, SolverOutcome.FEASIBLE)
+
+
+@dataclass(frozen=True, slots=True)
+class SolveReport:
+    """What an optimising controller says about one step's solve; the engine aggregates these
+    into ``summary.json`` ``solver``.
+
+    Attributes
+    ----------
+    outcome:
+        How the solve ended.
+    solver_s:
+        Wall time (s) spent inside the solver itself this step.
+    step_s:
+        Wall time (s) of the whole controller step (model updates, solve, reading the
+        solution); ``step_s / solver_s`` is the modelling layer's overhead.
+    """
+
+    outcome: SolverOutcome
+    solver_s: float
+    step_s: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,9 +164,13 @@ class Observation:
     (vx, vy). The velocity chosen by the command of this tick takes effect from the next tick:
     ``p[k+1] = p[k] + dt * v[k]`` and ``v[k+1] = v[k] + dt * u[k]``.
 
-    `goal` is where the current job wants the robot (None when idle); `speed_cap` is a
-    time-varying per-axis cap (e.g. from the print schedule) on top of zone limits, None when
-    there is none.
+    `goal` is where the current job wants the robot (None when idle). Print tasks cap the
+    robot's per-axis speed on top of zone limits: `speed_caps` lists the cap pieces
+    ``(start_s, end_s, cap)`` (absolute times, sorted, cropped to the engine's look-ahead
+    window, `CAP_LOOKAHEAD_S` from `t`) and `speed_cap` is the tightest cap
+    over this tick's step ``[t, t + period)``, None when no piece overlaps it. A velocity held
+    over a step must respect every piece that overlaps the step
+    (`fleet.printing.CapSchedule` computes per-step caps).
     """
 
     robot: str
@@ -132,6 +184,7 @@ class Observation:
     job: str | None = None
     speed_cap: float | None = None
     neighbours: tuple[Neighbour, ...] = ()
+    speed_caps: tuple[tuple[float, float, float], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,13 +193,15 @@ class Command:
 
     `plan` optionally carries the controller's intended trajectory as ``(t, x, y)`` samples
     (the MPC's horizon, the follower's next seconds) so other robots and the replay can see it.
-    An empty plan means "no news": the latest plan sent still holds.
+    An empty plan means "no news": the latest plan sent still holds. Optimising controllers
+    attach a `SolveReport` (`solve`) so the run's summary can report solver statistics.
     """
 
     ax: float
     ay: float
     status: ControlStatus = ControlStatus.OK
     plan: tuple[tuple[float, float, float], ...] = ()
+    solve: SolveReport | None = None
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,8 @@ straight segment ``p[k] -> p[k+1]`` at the recorded velocity ``v[k]``.
   segment enters (a step that straddles a boundary into a slower zone must already be slow;
   touching a boundary at one point, or dipping less than `LENGTH_TOL` into a region, does not
   count; a step running along a shared boundary is bound by the regions on both sides).
+- **print_speed**: ``|v[k].x|`` or ``|v[k].y|`` exceeds the cap of a print task that overlaps the
+  step's interval ``[t[k], t[k+1])`` (`fleet.printing.CapSchedule`).
 - **collision**: two robots sampled at the same time closer than the sum of their radii; one
   violation per pair and contact episode.
 """
@@ -22,8 +24,16 @@ import numpy as np
 import shapely
 
 from fleet.floor import Floor
+from fleet.printing import CapSchedule
 
-__all__ = ["Violation", "SafetyReport", "check_steps", "check_collisions", "SafetyChecker"]
+__all__ = [
+    "Violation",
+    "SafetyReport",
+    "check_steps",
+    "check_print_speed",
+    "check_collisions",
+    "SafetyChecker",
+]
 
 #: Length (m) of leaving the free space below which rounding is forgiven.
 LENGTH_TOL = 1e-6
@@ -35,7 +45,7 @@ SPEED_TOL = 1e-6
 class Violation:
     """One broken rule at one step."""
 
-    kind: str  # "obstacle", "speed_zone" or "collision"
+    kind: str  # "obstacle", "speed_zone", "print_speed" or "collision"
     robot: str
     t: float
     x: float
@@ -48,7 +58,7 @@ class SafetyReport:
     """Counts per kind plus the first violations in full (for the run directory)."""
 
     counts: dict[str, int] = field(
-        default_factory=lambda: {"obstacle": 0, "speed_zone": 0, "collision": 0}
+        default_factory=lambda: {"obstacle": 0, "speed_zone": 0, "print_speed": 0, "collision": 0}
     )
     examples: list[Violation] = field(default_factory=list)
     max_examples: int = 100
@@ -150,6 +160,35 @@ def _speed_violations(floor, t, xy, v, seg_idx, lines, robot) -> list[Violation]
     return out
 
 
+def check_print_speed(
+    t: np.ndarray, xy: np.ndarray, v: np.ndarray, caps: CapSchedule, robot: str = ""
+) -> list[Violation]:
+    """Steps whose per-axis speed exceeds a print cap overlapping ``[t[k], t[k+1])``."""
+    if not caps:
+        return []
+    t = np.asarray(t, dtype=float)
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    speed = np.abs(np.asarray(v, dtype=float).reshape(-1, 2))
+    out = []
+    for k in range(len(t) - 1):
+        # Shrink the interval by a rounding error so a piece ending exactly at t[k] (or
+        # starting at t[k+1]) does not bind the step.
+        eps = 1e-9 * max(1.0, abs(t[k + 1]))
+        cap = caps.cap_over(t[k] + eps, t[k + 1] - eps)
+        if speed[k, 0] > cap + SPEED_TOL or speed[k, 1] > cap + SPEED_TOL:
+            out.append(
+                _v(
+                    "print_speed",
+                    robot,
+                    t,
+                    xy,
+                    k,
+                    f"|v| = ({speed[k, 0]:.4g}, {speed[k, 1]:.4g}) m/s over print cap {cap:.4g}",
+                )
+            )
+    return out
+
+
 def check_collisions(
     t: np.ndarray,
     robot_index: np.ndarray,
@@ -227,13 +266,19 @@ class SafetyChecker:
         self,
         trajectories: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
         radii: Mapping[str, float],
+        caps: Mapping[str, CapSchedule] | None = None,
     ) -> SafetyReport:
-        """`trajectories[robot] = (t, xy, v)`; returns counts and the first violations."""
+        """`trajectories[robot] = (t, xy, v)`; `caps[robot]` the print caps it was under.
+
+        Returns counts and the first violations.
+        """
         report = SafetyReport()
         names = sorted(trajectories)
         for name in names:
             t, xy, v = trajectories[name]
             report.add(check_steps(self.floor, t, xy, v, name))
+            if caps and name in caps:
+                report.add(check_print_speed(t, xy, v, caps[name], name))
         if len(names) > 1:
             ts, idx, pts = [], [], []
             for i, name in enumerate(names):

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from fleet.errors import ScenarioError
+from fleet.printing import TASK_KINDS, PrintSchedule, PrintTask
 
 __all__ = [
     "RobotsConfig",
@@ -57,9 +58,13 @@ class PluginChoice:
 
 @dataclass(frozen=True)
 class ScriptedJob:
+    """A job released at `at_s` to `station`; `tasks` is what the robot prints on the way
+    (times relative to the print's start, which is when the job is assigned)."""
+
     at_s: float
     station: str
     due_s: float | None = None
+    tasks: tuple[PrintTask, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -89,6 +94,14 @@ class Scenario:
     bus_address: str | None = None  # None -> a private inproc:// address
     arrival_tolerance_m: float = 0.05
     sensing_radius_m: float = 0.0  # > 0: observations list the robots this close (nearest 8)
+    #: Per-axis speed cap (m/s) of each print task kind; kinds not listed are not capped.
+    print_caps: dict[str, float] = field(default_factory=dict)
+
+    def print_schedule(self, job: ScriptedJob) -> PrintSchedule | None:
+        """The print schedule of a scripted job under this scenario's caps (None: no print)."""
+        if not job.tasks:
+            return None
+        return PrintSchedule(job.tasks, self.print_caps)
 
     def override(
         self,
@@ -193,14 +206,28 @@ def load_scenario(path: str | Path) -> Scenario:
         )
         station = t.take("station", str, required=True)
         due = t.take("due_s", (int, float), None)
+        tasks = _print_tasks(src, f"jobs.scripted[{i}].print", t.take_list("print", dict, ()))
         t.finish()
-        scripted.append(ScriptedJob(float(at), station, None if due is None else float(due)))
+        scripted.append(ScriptedJob(float(at), station, None if due is None else float(due), tasks))
     if mode == "scripted" and not scripted:
         raise ScenarioError(src, "jobs.scripted", [], "mode 'scripted' needs at least one job")
     jb.finish()
     jobs = JobsConfig(
         mode, float(rate), stations, None if due_in is None else float(due_in), tuple(scripted)
     )
+
+    pr = root.table("print")
+    caps = {}
+    for kind, cap in pr.take("caps", dict, {}).items():
+        if kind not in TASK_KINDS:
+            raise ScenarioError(
+                src,
+                f"print.caps.{kind}",
+                cap,
+                f"unknown task kind (known: {', '.join(TASK_KINDS)})",
+            )
+        caps[kind] = _positive(src, f"print.caps.{kind}", cap)
+    pr.finish()
 
     bus = root.table("bus")
     address = bus.take("address", str, None)
@@ -223,7 +250,42 @@ def load_scenario(path: str | Path) -> Scenario:
         bus_address=address,
         arrival_tolerance_m=float(tol),
         sensing_radius_m=float(sensing),
+        print_caps=caps,
     )
+
+
+def _print_tasks(src: str, where: str, items: list[dict]) -> tuple[PrintTask, ...]:
+    """Read ``print = [{kind, start_s, end_s}, ...]``: in order, not overlapping."""
+    tasks: list[PrintTask] = []
+    for i, item in enumerate(items):
+        t = _Table(src, f"{where}[{i}].", item)
+        kind = t.take("kind", str, required=True)
+        if kind not in TASK_KINDS:
+            raise ScenarioError(
+                src,
+                f"{where}[{i}].kind",
+                kind,
+                f"unknown task kind (known: {', '.join(TASK_KINDS)})",
+            )
+        start = _non_negative(
+            src, f"{where}[{i}].start_s", t.take("start_s", (int, float), required=True)
+        )
+        end = _positive(src, f"{where}[{i}].end_s", t.take("end_s", (int, float), required=True))
+        t.finish()
+        if end <= start:
+            raise ScenarioError(
+                src, f"{where}[{i}].end_s", end, f"must be after start_s ({start:g})"
+            )
+        if tasks and start < tasks[-1].end_s:
+            raise ScenarioError(
+                src,
+                f"{where}[{i}].start_s",
+                start,
+                f"tasks must be in order and not overlap (the previous one ends at "
+                f"{tasks[-1].end_s:g} s)",
+            )
+        tasks.append(PrintTask(kind, start, end))
+    return tuple(tasks)
 
 
 def _robots(rb: _Table, src: str, where: str) -> RobotsConfig:

@@ -247,7 +247,7 @@ def test_any_finite_observation_and_command_survive_the_wire_exactly(obs, cmd, t
 
 
 def envelope(**over) -> dict:
-    env = {"version": 1, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
+    env = {"version": 2, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
     env.update(over)
     return env
 
@@ -273,7 +273,8 @@ MALFORMED = [
     (b"{not json", "is not valid JSON"),
     (b'{"version": 1} trailing', "is not valid JSON"),
     (raw([1, 2, 3]), "must be a JSON object"),
-    (raw(envelope(version=2)), "version = 2: unsupported schema version"),
+    (raw(envelope(version=1)), "version = 1: unsupported schema version"),
+    (raw(envelope(version=3)), "version = 3: unsupported schema version"),
     (raw(envelope(version="1")), "version = '1'"),
     (raw({"kind": "bye"}), "version = None"),
     (raw(envelope(kind="shout")), "kind = 'shout': must be one of 'hello'"),

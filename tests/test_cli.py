@@ -53,7 +53,7 @@ def test_run_writes_the_run_directory(scenario, tmp_path, capsys):
     assert set(summary) >= SUMMARY_KEYS
     assert summary["seed"] == 5 and summary["robots"] == 3
     assert set(summary["jobs"]) >= {"released", "completed"}
-    assert set(summary["violations"]) == {"obstacle", "speed_zone", "collision"}
+    assert set(summary["violations"]) == {"obstacle", "speed_zone", "print_speed", "collision"}
     assert [p["id"] for p in summary["per_robot"]] == ["r01", "r02", "r03"]
     with open(out / "trajectories.csv") as fh:
         rows = list(csv.DictReader(fh))

@@ -164,9 +164,8 @@ def test_unknown_plugin_is_a_clear_error(scenario_file):
 def test_a_controller_that_raises_costs_its_robot_a_brake_not_the_run(
     scenario_file, monkeypatch, caplog
 ):
-    from fleet_plugins.follower import PathFollower
-
     import fleet.engine.world as world_module
+    from fleet_plugins.follower import PathFollower
 
     class Flaky(PathFollower):
         """The follower, except that it raises on every 10th tick of robot r01."""

@@ -8,8 +8,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 import shapely
-from fleet_plugins.follower import PathFollower
-from fleet_plugins.follower.controller import PLAN_SAMPLE
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -25,6 +23,8 @@ from fleet.plugins import (
 )
 from fleet.safety import check_steps
 from fleet.testing import CONFORMANCE_SPEC, check_controller, conformance_floor
+from fleet_plugins.follower import PathFollower
+from fleet_plugins.follower.controller import PLAN_SAMPLE
 
 SPEC = CONFORMANCE_SPEC
 DT, A_MAX = SPEC.period, SPEC.a_max

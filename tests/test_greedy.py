@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pytest
-from fleet_plugins.greedy import METRICS, GreedyDispatcher
 from shapely.geometry import box
 
 from fleet.errors import PluginError
@@ -11,6 +10,7 @@ from fleet.floor import Floor, FloorSpec
 from fleet.paths import PathPlanner
 from fleet.plugins import Assignment, DispatchContext, Job, RobotStatus, load_dispatcher
 from fleet.testing import check_dispatcher, conformance_floor
+from fleet_plugins.greedy import METRICS, GreedyDispatcher
 
 FLOOR = conformance_floor()
 CONTEXT = DispatchContext(t=0.0, floor=FLOOR, planner=PathPlanner(FLOOR, 1.0, 0.5))

@@ -12,8 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fleet_plugins.follower import PathFollower
-from fleet_plugins.greedy import GreedyDispatcher
 
 import fleet.plugins as plugins_module
 from fleet.errors import PluginError
@@ -33,6 +31,8 @@ from fleet.plugins import (
 )
 from fleet.robot import brake_input
 from fleet.testing import ConformanceError, check_controller, check_dispatcher
+from fleet_plugins.follower import PathFollower
+from fleet_plugins.greedy import GreedyDispatcher
 
 
 @pytest.fixture(autouse=True)

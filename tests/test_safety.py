@@ -104,7 +104,7 @@ def test_collisions_count_episodes_not_samples():
 def test_checker_counts_per_kind(hall):
     tr = {"a": steps([(3.5, 1), (6.5, 1)], dt=3.0), "b": steps([(3.5, 1.5), (3.5, 1.5)])}
     report = SafetyChecker(hall).check(tr, {"a": 0.4, "b": 0.4})
-    assert report.counts == {"obstacle": 1, "speed_zone": 0, "collision": 1}
+    assert report.counts == {"obstacle": 1, "speed_zone": 0, "print_speed": 0, "collision": 1}
 
 
 def test_double_integrator_matches_the_paper_matrices():

@@ -1,15 +1,17 @@
-"""The bus's wire schema: what the engine and the robot agents say to each other, version 1.
+"""The bus's wire schema: what the engine and the robot agents say to each other, version 2.
 
 Every message is one ZeroMQ frame holding one compact UTF-8 JSON object, the *envelope*::
 
-    {"version": 1, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
+    {"version": 2, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
 
 `kind` says what the body holds (see `MessageKind`); `tick` is the engine's control tick the
 message belongs to (0 for HELLO). Observations and commands travel as JSON objects whose fields
 are exactly those of `fleet.plugins.Observation` and `fleet.plugins.Command`; small fixed
 tuples travel as arrays: a goal is ``[x, y]``, a neighbour ``[robot, x, y, vx, vy]``, a plan
-sample ``[t, x, y]``. Every field is always present (``null`` where the dataclass holds None),
-so a message either matches the schema exactly or is rejected.
+sample ``[t, x, y]``, a speed-cap piece ``[start_s, end_s, cap]``, a solve report
+``[outcome, solver_s, step_s]``. (Version 2 added ``speed_caps`` and ``solve``.) Every field
+is always present (``null`` where the dataclass holds None), so a message either matches the
+schema exactly or is rejected.
 
 `decode` trusts nothing: it checks the JSON, the version, the kind, every field's presence and
 type, that numbers are finite and that no field is extra, and raises `MessageError` saying what
@@ -27,7 +29,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from fleet.errors import MessageError
-from fleet.plugins import Command, ControlStatus, Neighbour, Observation
+from fleet.plugins import (
+    Command,
+    ControlStatus,
+    Neighbour,
+    Observation,
+    SolveReport,
+    SolverOutcome,
+)
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -41,7 +50,7 @@ __all__ = [
     "command_from_wire",
 ]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 """The version this build writes and the only one it reads."""
 
 
@@ -215,6 +224,7 @@ def observation_to_wire(o: Observation) -> dict[str, Any]:
         "neighbours": [
             [n.robot, float(n.x), float(n.y), float(n.vx), float(n.vy)] for n in o.neighbours
         ],
+        "speed_caps": [[float(a), float(b), float(c)] for a, b, c in o.speed_caps],
     }
 
 
@@ -233,11 +243,21 @@ def command_to_wire(c: Command) -> dict[str, Any]:
     if not isinstance(status, ControlStatus):
         raise _fail("command.status", status, f"must be a ControlStatus ({_STATUS_NAMES})")
     plan = c.plan
+    solve = c.solve
+    if solve is not None:
+        if not isinstance(solve, SolveReport) or not isinstance(solve.outcome, SolverOutcome):
+            raise _fail("command.solve", solve, "must be None or a SolveReport")
+        solve = [
+            solve.outcome.value,
+            _number(solve.solver_s, "command.solve", "solver_s"),
+            _number(solve.step_s, "command.solve", "step_s"),
+        ]
     return {
         "ax": _number(c.ax, "command", "ax"),
         "ay": _number(c.ay, "command", "ay"),
         "status": status.value,
         "plan": [_triple(p, "command.plan", i) for i, p in enumerate(plan)] if plan else [],
+        "solve": solve,
     }
 
 
@@ -258,10 +278,25 @@ _LABELS = {k: f"{k.name} message from " for k in MessageKind}
 _KIND_NAMES = ", ".join(repr(k.value) for k in MessageKind)
 _STATUS = {s.value: s for s in ControlStatus}
 _STATUS_NAMES = ", ".join(repr(s.value) for s in ControlStatus)
+_OUTCOME = {o.value: o for o in SolverOutcome}
+_OUTCOME_NAMES = ", ".join(repr(o.value) for o in SolverOutcome)
 _OBSERVATION_FIELDS = frozenset(
-    ("robot", "tick", "t", "x", "y", "vx", "vy", "goal", "job", "speed_cap", "neighbours")
+    (
+        "robot",
+        "tick",
+        "t",
+        "x",
+        "y",
+        "vx",
+        "vy",
+        "goal",
+        "job",
+        "speed_cap",
+        "neighbours",
+        "speed_caps",
+    )
 )
-_COMMAND_FIELDS = frozenset(("ax", "ay", "status", "plan"))
+_COMMAND_FIELDS = frozenset(("ax", "ay", "status", "plan", "solve"))
 _HELLO_FIELDS = frozenset(("robots",))
 _WELCOME_FIELDS = frozenset(("accepted", "rejected"))
 _OBSERVE_FIELDS = frozenset(("t", "observations"))
@@ -473,6 +508,9 @@ def _observation(d: Any, prefix: str, index: int | None = None) -> Observation:
     neighbours = d["neighbours"]
     if type(neighbours) is not list:
         raise _fail(f"{_at(prefix, index)}.neighbours", neighbours, "must be an array")
+    caps = d["speed_caps"]
+    if type(caps) is not list:
+        raise _fail(f"{_at(prefix, index)}.speed_caps", caps, "must be an array")
     t, x, y, vx, vy = d["t"], d["x"], d["y"], d["vx"], d["vy"]
     # Fast path: all plain floats, and x - x == 0.0 only for finite x (inf and nan give nan).
     if (
@@ -502,7 +540,26 @@ def _observation(d: Any, prefix: str, index: int | None = None) -> Observation:
         tuple([_neighbour(n, prefix, index, j) for j, n in enumerate(neighbours)])
         if neighbours
         else (),
+        _cap_pieces(caps, f"{_at(prefix, index)}.speed_caps") if caps else (),
     )
+
+
+def _cap_pieces(caps: list, where: str) -> tuple[tuple[float, float, float], ...]:
+    out = []
+    previous = -float("inf")
+    for i, piece in enumerate(caps):
+        if type(piece) is not list or len(piece) != 3:
+            raise _fail(f"{where}[{i}]", piece, "must be [start_s, end_s, cap]")
+        a, b, c = (_number(v, where, f"[{i}]") for v in piece)
+        if not b > a or c < 0 or a < previous:
+            raise _fail(
+                f"{where}[{i}]",
+                piece,
+                "pieces must be sorted, non-overlapping, end > start, cap >= 0",
+            )
+        previous = b
+        out.append((a, b, c))
+    return tuple(out)
 
 
 def _neighbour(n: Any, prefix: str, index: int | None, j: int) -> Neighbour:
@@ -538,10 +595,26 @@ def _command(d: Any, prefix: str, key: str | None = None) -> Command:
     if type(ax) is not float or type(ay) is not float or ax - ax + ay - ay != 0.0:
         ax = _number(ax, _key(prefix, key), "ax")
         ay = _number(ay, _key(prefix, key), "ay")
+    solve = d["solve"]
+    if solve is not None:
+        solve = _solve(solve, f"{_key(prefix, key)}.solve")
     if plan:
         where = f"{_key(prefix, key)}.plan"
-        return Command(ax, ay, status, tuple([_triple(p, where, i) for i, p in enumerate(plan)]))
-    return Command(ax, ay, status)
+        plan = tuple([_triple(p, where, i) for i, p in enumerate(plan)])
+        return Command(ax, ay, status, plan, solve)
+    return Command(ax, ay, status, (), solve)
+
+
+def _solve(s: Any, where: str) -> SolveReport:
+    if type(s) is not list or len(s) != 3:
+        raise _fail(where, s, "must be null or [outcome, solver_s, step_s]")
+    outcome = _OUTCOME.get(s[0]) if type(s[0]) is str else None
+    if outcome is None:
+        raise _fail(f"{where}[0]", s[0], f"must be one of {_OUTCOME_NAMES}")
+    solver_s, step_s = _number(s[1], where, "[1]"), _number(s[2], where, "[2]")
+    if solver_s < 0 or step_s < 0:
+        raise _fail(where, s, "times must be >= 0")
+    return SolveReport(outcome, solver_s, step_s)
 
 
 def _triple(p: Any, where: str, i: int) -> tuple[float, float, float]:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from fleet.errors import ScenarioError
 from fleet.floor import Floor
 from fleet.plugins import Job
+from fleet.printing import CapSchedule, PrintTask
 from fleet.scenario import JobsConfig
 
 __all__ = ["JobRecord", "JobSource", "destination_stations"]
@@ -24,6 +25,11 @@ class JobRecord:
     assigned_s: float | None = None
     started_s: float | None = None
     delivered_s: float | None = None
+    #: What the robot prints on the way (times relative to the print's start).
+    tasks: tuple[PrintTask, ...] = ()
+    #: The print's speed caps on the simulation clock, once the job is assigned (printing
+    #: starts then) and cropped at delivery.
+    caps: CapSchedule = field(default_factory=CapSchedule)
 
     @property
     def open(self) -> bool:
@@ -68,6 +74,8 @@ class JobSource:
         self.rng = rng
         self.source = source
         self.stations = destination_stations(floor, config, source)
+        #: Print tasks of the jobs yielded so far that have any, by job id (the engine pops them).
+        self.print_tasks: dict[str, tuple[PrintTask, ...]] = {}
         for i, item in enumerate(config.scripted):
             if item.station not in {s.name for s in floor.spec.stations}:
                 raise ScenarioError(
@@ -81,7 +89,10 @@ class JobSource:
         if self.config.mode == "scripted":
             ordered = sorted(enumerate(self.config.scripted), key=lambda p: (p[1].at_s, p[0]))
             for n, (_, item) in enumerate(ordered, start=1):
-                yield item.at_s, self._job(n, item.station, item.at_s, item.due_s)
+                job = self._job(n, item.station, item.at_s, item.due_s)
+                if item.tasks:
+                    self.print_tasks[job.id] = item.tasks
+                yield item.at_s, job
             return
         mean_gap = 3600.0 / self.config.rate_per_h
         t = 0.0

@@ -4,10 +4,15 @@ Output contract (extend it, never break it):
 
 - ``summary.json``: scenario, map, seed, controller, dispatcher, robots, sim_time_s,
   wall_time_s, jobs {released, completed, ...}, throughput_per_h, mean_lead_time_s, distance_m,
-  violations {obstacle, speed_zone, collision}, per_robot [{id, distance_m, jobs_completed}],
-  digest (sha256 of the trajectories: the same seed gives the same digest).
+  violations {obstacle, speed_zone, print_speed, collision}, solver {steps, median_ms, p95_ms,
+  max_ms, fallbacks, termination {outcome: count}, ...} (solve statistics reported by optimising
+  controllers), per_robot [{id, distance_m, jobs_completed}], digest (sha256 of the
+  trajectories: the same seed gives the same digest); for scripted (point-to-point) runs also
+  arrivals {robot: time of its last delivery, s, or null}.
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, delivered).
+- ``caps.csv``: robot, job, kind, start_s, end_s, cap: the print-task speed caps each robot was
+  under (absolute seconds; written when any job prints).
 - ``violations.csv``: the first violations in full, when there are any.
 """
 
@@ -91,7 +96,15 @@ class Recorder:
         return h.hexdigest()
 
     # -- writing ------------------------------------------------------------------------------
-    def write(self, out_dir: Path, summary: dict[str, Any], floor: Floor, violations: list) -> None:
+    def write(
+        self,
+        out_dir: Path,
+        summary: dict[str, Any],
+        floor: Floor,
+        violations: list,
+        caps: list[tuple[str, str, str, float, float, float]] | None = None,
+    ) -> None:
+        """Write the run directory; `caps` rows are (robot, job, kind, start_s, end_s, cap)."""
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(
             json.dumps(summary, indent=2) + "\n", encoding="utf-8"
@@ -102,6 +115,15 @@ class Recorder:
             w.writerow(["t", "event", "job", "robot", "station"])
             for e in self.events:
                 w.writerow([f"{e.t:.6f}", e.event, e.job, e.robot, e.station])
+        cpath = out_dir / "caps.csv"
+        if caps:
+            with open(cpath, "w", newline="", encoding="utf-8") as fh:
+                w = csv.writer(fh)
+                w.writerow(["robot", "job", "kind", "start_s", "end_s", "cap"])
+                for robot, job, kind, start, end, cap in caps:
+                    w.writerow([robot, job, kind, f"{start:.6f}", f"{end:.6f}", f"{cap:g}"])
+        elif cpath.exists():
+            cpath.unlink()
         vpath = out_dir / "violations.csv"
         if violations:
             with open(vpath, "w", newline="", encoding="utf-8") as fh:

@@ -30,6 +30,7 @@ from fleet.errors import FleetError, PluginError, ScenarioError
 from fleet.floor import Floor, load_floor
 from fleet.paths import PathPlanner
 from fleet.plugins import (
+    CAP_LOOKAHEAD_S,
     Assignment,
     Command,
     ControllerContext,
@@ -39,9 +40,11 @@ from fleet.plugins import (
     Observation,
     RobotSpec,
     RobotStatus,
+    SolveReport,
     load_controller,
     load_dispatcher,
 )
+from fleet.printing import CapSchedule, PrintSchedule
 from fleet.robot import DoubleIntegrator, brake_input
 from fleet.safety import SafetyChecker, SafetyReport
 from fleet.scenario import Scenario
@@ -76,6 +79,13 @@ class RobotState:
     return_home: bool = True
     #: The latest plan the robot's controller sent, ``(t, x, y)`` samples (empty: none yet).
     plan: tuple[tuple[float, float, float], ...] = ()
+    #: Print caps of the jobs this robot has finished (the current job's are in `job.caps`).
+    past_caps: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def caps(self) -> CapSchedule:
+        """Every print-cap piece this robot has been under so far (for the safety checker)."""
+        current = self.job.caps.pieces if self.job is not None else ()
+        return CapSchedule(tuple(self.past_caps) + current)
 
     @property
     def goal(self) -> tuple[float, float] | None:
@@ -137,6 +147,7 @@ class World:
         self._check_reachable(homes)
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
         self.stats: dict[str, int] = defaultdict(int)
+        self.solves: list[SolveReport] = []
 
         controllers = {}
         for rid, robot in self.robots.items():
@@ -267,7 +278,7 @@ class World:
             if t > self.scenario.duration_s:
                 return
             yield self.env.timeout(t - self.env.now)
-            rec = JobRecord(job)
+            rec = JobRecord(job, tasks=self.job_source.print_tasks.pop(job.id, ()))
             self.jobs.append(rec)
             self.recorder.event(t, "released", job.id, station=job.station)
             self._request_dispatch()
@@ -298,6 +309,10 @@ class World:
         return ev
 
     def _bus_round(self, _event: simpy.Event) -> None:
+        if self._dispatch_scheduled:
+            # A job released (or a robot freed) at this instant is assigned before the robots
+            # observe, so a job released at t starts being served at t, not one period later.
+            self._dispatch(None)
         pending, self._pending = self._pending, []
         pending.sort(key=lambda p: p[0].id)
         t = self.env.now
@@ -314,6 +329,8 @@ class World:
                 self.stats[f"commands_{cmd.status.value}"] += 1
             if cmd.plan:
                 robot.plan = cmd.plan  # an empty plan means the previous one still holds
+            if cmd.solve is not None:
+                self.solves.append(cmd.solve)
             a = robot.spec.a_max
             if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
                 self.stats["commands_clipped"] += 1
@@ -330,6 +347,13 @@ class World:
             goal = r.goal
             if goal is None and r.return_home:
                 goal = r.home
+            caps = r.job.caps if r.job is not None else None
+            cap = None
+            window: tuple[tuple[float, float, float], ...] = ()
+            if caps:
+                window = caps.window(t, t + CAP_LOOKAHEAD_S).pieces
+                over = caps.cap_over(t, t + r.spec.period)
+                cap = None if math.isinf(over) else over
             out.append(
                 Observation(
                     robot=r.id,
@@ -341,7 +365,9 @@ class World:
                     vy=r.vy,
                     goal=goal,
                     job=None if r.job is None else r.job.job.id,
+                    speed_cap=cap,
                     neighbours=near.get(r.id, ()),
+                    speed_caps=window,
                 )
             )
         return out
@@ -372,6 +398,9 @@ class World:
         rec = robot.job
         assert rec is not None
         rec.delivered_s = self.env.now
+        # Printing ends with the delivery: the caps after it no longer bind the robot.
+        rec.caps = rec.caps.window(-math.inf, self.env.now)
+        robot.past_caps.extend(rec.caps.pieces)
         robot.jobs_completed += 1
         robot.job = None
         self.recorder.event(self.env.now, "delivered", rec.job.id, robot.id, rec.job.station)
@@ -382,7 +411,9 @@ class World:
             self._dispatch_scheduled = True
             self.env.timeout(0).callbacks.append(self._dispatch)
 
-    def _dispatch(self, _event: simpy.Event) -> None:
+    def _dispatch(self, _event: simpy.Event | None) -> None:
+        if not self._dispatch_scheduled:
+            return  # already run at this instant, before a bus round
         self._dispatch_scheduled = False
         open_jobs = [rec for rec in self.jobs if rec.open]
         idle = [r for r in self.robots.values() if r.job is None]
@@ -421,6 +452,9 @@ class World:
                 continue
             taken_jobs.add(a.job)
             rec.robot, rec.assigned_s = robot.id, self.env.now
+            if rec.tasks:  # printing starts when the job is assigned
+                schedule = PrintSchedule(rec.tasks, self.scenario.print_caps)
+                rec.caps = schedule.caps_from(self.env.now)
             robot.job = rec
             self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
 
@@ -458,7 +492,8 @@ class World:
         sc = self.scenario
         trajectories = {rid: tr.arrays() for rid, tr in self.recorder.trajectories.items()}
         radii = {rid: r.spec.radius for rid, r in self.robots.items()}
-        safety = SafetyChecker(self.floor).check(trajectories, radii)
+        caps = {rid: r.caps() for rid, r in self.robots.items()}
+        safety = SafetyChecker(self.floor).check(trajectories, radii, caps)
         completed = [rec for rec in self.jobs if rec.delivered_s is not None]
         lead = [rec.lead_time_s for rec in completed]
         per_robot = [
@@ -492,6 +527,7 @@ class World:
             "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
             "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
             "violations": dict(safety.counts),
+            "solver": self._solver_summary(),
             "per_robot": per_robot,
             "engine": {
                 "bus_rounds": self._round,
@@ -501,7 +537,56 @@ class World:
             },
             "digest": self.recorder.digest(),
         }
+        if sc.jobs.mode == "scripted":
+            # Point-to-point runs: when each robot finished its last scripted trip.
+            last: dict[str, float | None] = dict.fromkeys(self.robots)
+            for rec in completed:
+                last[rec.robot] = max(last[rec.robot] or 0.0, rec.delivered_s)
+            summary["arrivals"] = last
         return RunResult(summary, safety, list(self.jobs))
+
+    def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
+        """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows."""
+        caps = self.scenario.print_caps
+        rows = []
+        for rec in self.jobs:
+            if rec.robot is None or rec.assigned_s is None:
+                continue
+            stop = math.inf if rec.delivered_s is None else rec.delivered_s
+            for task in rec.tasks:
+                start = rec.assigned_s + task.start_s
+                end = min(rec.assigned_s + task.end_s, stop)
+                if task.kind in caps and end > start:
+                    rows.append((rec.robot, rec.job.id, task.kind, start, end, caps[task.kind]))
+        return rows
+
+    def _solver_summary(self) -> dict[str, Any]:
+        """Statistics of the `SolveReport`s controllers attached to their commands."""
+        solves = self.solves
+        outcomes: dict[str, int] = defaultdict(int)
+        for s in solves:
+            outcomes[s.outcome.value] += 1
+        out: dict[str, Any] = {
+            "steps": len(solves),
+            "median_ms": None,
+            "p95_ms": None,
+            "max_ms": None,
+            "fallbacks": int(self.stats.get("commands_fallback", 0)),
+            "termination": dict(sorted(outcomes.items())),
+        }
+        if solves:
+            solver = np.array([s.solver_s for s in solves]) * 1e3
+            step = np.array([s.step_s for s in solves]) * 1e3
+            out.update(
+                median_ms=round(float(np.median(solver)), 3),
+                p95_ms=round(float(np.percentile(solver, 95)), 3),
+                max_ms=round(float(solver.max()), 3),
+                step_median_ms=round(float(np.median(step)), 3),
+                step_p95_ms=round(float(np.percentile(step, 95)), 3),
+                # The modelling layer's overhead: whole controller step over solver time.
+                overhead_ratio=round(float(step.sum() / max(solver.sum(), 1e-12)), 3),
+            )
+        return out
 
 
 def _at_rest_near(robot: RobotState, goal: tuple[float, float] | None, tol: float) -> bool:

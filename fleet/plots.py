@@ -1,0 +1,629 @@
+"""Figures of a finished run, drawn from its run directory (never by re-running anything).
+
+The two figures of the MAMbot paper, for any scenario:
+
+- ``trajectory.png``: the floor (speed zones shaded by their limit, machines, stations) with
+  each robot's path over it;
+- ``speed.png``: each robot's vx and vy against time with the limit in force at every step,
+  ``min(zone limit, print cap)``, and its print tasks shaded by kind.
+
+Everything is drawn on `matplotlib.figure.Figure` objects with an Agg canvas, never pyplot: no
+display is needed and no global figure state leaks between callers (the CLI, tests, notebooks).
+The readers (`load_run`, `load_tracks`, `load_caps`) and the drawing helpers (`plot_floor`,
+`KIND_COLOURS`) are public so further figures (e.g. a Gantt chart of print tasks) share them.
+
+Semantics of a step, as in the engine and `fleet.safety`: the velocity ``v[k]`` is held over
+``[t_k, t_{k+1})``; the step's zone limit is ``min(v_zone[k], v_zone[k+1])`` (a step that
+straddles a zone boundary is bound by both sides) and its print cap is the tightest cap of any
+print task overlapping the interval.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+from matplotlib import colormaps
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch, PathPatch
+from matplotlib.path import Path as MplPath
+from shapely.geometry.base import BaseGeometry
+
+from fleet.errors import InputError
+from fleet.floor import Floor, load_floor
+
+__all__ = [
+    "Track",
+    "PrintCap",
+    "RunData",
+    "KIND_COLOURS",
+    "TRAJECTORY_PNG",
+    "SPEED_PNG",
+    "load_tracks",
+    "load_caps",
+    "load_run",
+    "step_limits",
+    "plot_floor",
+    "trajectory_figure",
+    "speed_figure",
+    "save_run_figures",
+]
+
+#: File names `save_run_figures` writes into the run directory.
+TRAJECTORY_PNG = "trajectory.png"
+SPEED_PNG = "speed.png"
+
+#: One colour per print-task kind, shared by every figure that shows print tasks.
+KIND_COLOURS: Mapping[str, str] = {
+    "contour": "#d62728",
+    "infill": "#ff7f0e",
+    "support": "#2ca02c",
+    "travel": "#7f7f7f",
+    "other": "#9467bd",
+}
+
+_TRACK_COLUMNS = ("t", "robot", "x", "y", "vx", "vy", "region", "v_zone")
+_CAP_COLUMNS = ("robot", "job", "kind", "start_s", "end_s", "cap")
+_OBSTACLE_COLOUR = "#6b0f0f"
+_CLEARANCE_COLOUR = "#cfcfcf"
+_DPI = 150
+# Margin (s) so that a task ending on a step boundary does not cap the neighbouring step:
+# trajectories.csv rounds times to the millisecond, so half of that.
+_EPS_S = 5e-4
+
+
+# -- what a run directory holds ---------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Track:
+    """One robot's samples from ``trajectories.csv``, in time order.
+
+    Attributes
+    ----------
+    robot:
+        Robot id.
+    t:
+        Sample times (s), shape (n,).
+    xy:
+        Positions (m), shape (n, 2).
+    v:
+        Velocities (vx, vy) in m/s, shape (n, 2); ``v[k]`` is held over ``[t[k], t[k+1])``.
+    region:
+        Index into ``floor.regions`` at each sample, -1 outside the free space.
+    v_zone:
+        Per-axis zone limit at each sample (m/s; 0 outside the free space).
+    """
+
+    robot: str
+    t: np.ndarray
+    xy: np.ndarray
+    v: np.ndarray
+    region: np.ndarray
+    v_zone: np.ndarray
+
+
+@dataclass(frozen=True)
+class PrintCap:
+    """One print task of one robot from ``caps.csv``: the per-axis cap on ``[start_s, end_s)``.
+
+    `cap` is ``inf`` for a task whose kind carries no cap (it is still drawn).
+    """
+
+    robot: str
+    job: str
+    kind: str
+    start_s: float
+    end_s: float
+    cap: float
+
+
+@dataclass(frozen=True, eq=False)
+class RunData:
+    """Everything the figures need from one run directory."""
+
+    run_dir: Path
+    summary: dict[str, Any]
+    floor: Floor
+    tracks: dict[str, Track]
+    caps: tuple[PrintCap, ...]
+
+    @property
+    def title(self) -> str:
+        """``scenario: controller + dispatcher`` from the summary (what the figures are titled)."""
+        s = self.summary
+        plugins = " + ".join(str(s[k]) for k in ("controller", "dispatcher") if s.get(k))
+        name = str(s.get("scenario", self.run_dir.name))
+        return f"{name}: {plugins}" if plugins else name
+
+
+def load_tracks(path: Path) -> dict[str, Track]:
+    """Read ``trajectories.csv``; one `Track` per robot, robots in id order.
+
+    Raises
+    ------
+    InputError
+        The file is missing, lacks a column, or holds a value that is not a number.
+    """
+    path = Path(path)
+    rows = _read_csv(path, _TRACK_COLUMNS)
+    by_robot: dict[str, list[list[float]]] = {}
+    numeric = ("t", "x", "y", "vx", "vy", "region", "v_zone")
+    for line, row in rows:
+        values = [_number(path, line, col, row[col]) for col in numeric]
+        by_robot.setdefault(row["robot"], []).append(values)
+    tracks = {}
+    for robot in sorted(by_robot):
+        a = np.asarray(by_robot[robot], dtype=float)
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        tracks[robot] = Track(
+            robot=robot,
+            t=a[:, 0],
+            xy=a[:, 1:3],
+            v=a[:, 3:5],
+            region=a[:, 5].astype(np.int64),
+            v_zone=a[:, 6],
+        )
+    return tracks
+
+
+def load_caps(path: Path) -> tuple[PrintCap, ...]:
+    """Read ``caps.csv``; an absent file means no print tasks (an empty tuple).
+
+    An empty `cap` cell (or ``inf``) is a task without a cap.
+
+    Raises
+    ------
+    InputError
+        A column is missing, a value is not a number, a task ends before it starts, or a cap
+        is negative.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return ()
+    caps = []
+    for line, row in _read_csv(path, _CAP_COLUMNS):
+        start = _number(path, line, "start_s", row["start_s"])
+        end = _number(path, line, "end_s", row["end_s"])
+        cap = math.inf if row["cap"].strip() == "" else _number(path, line, "cap", row["cap"])
+        if not end > start:
+            raise InputError(
+                str(path), f"line {line}, end_s", row["end_s"], f"must be after start_s {start:g}"
+            )
+        if not cap >= 0:
+            raise InputError(
+                str(path), f"line {line}, cap", row["cap"], "must be >= 0 m/s (empty: no cap)"
+            )
+        caps.append(PrintCap(row["robot"], row["job"], row["kind"], start, end, cap))
+    return tuple(sorted(caps, key=lambda c: (c.robot, c.start_s)))
+
+
+def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
+    """Read a run directory written by `fleet run` (summary, trajectories, optional caps).
+
+    Parameters
+    ----------
+    run_dir:
+        The run directory.
+    floor:
+        The run's floor; None loads the map named by ``summary.json``'s ``"map"``.
+
+    Raises
+    ------
+    InputError
+        ``trajectories.csv`` is missing or malformed; `floor` is None and ``summary.json`` is
+        missing, malformed or names no map.
+    MapError
+        The map file named in the summary is missing or invalid.
+    """
+    run_dir = Path(run_dir)
+    tracks = load_tracks(run_dir / "trajectories.csv")
+    summary_path = run_dir / "summary.json"
+    summary: dict[str, Any] = {}
+    if summary_path.is_file():
+        try:
+            summary = json.loads(summary_path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as exc:
+            raise InputError(str(summary_path), "(file)", str(exc), "must be valid JSON") from exc
+        if not isinstance(summary, dict):
+            raise InputError(str(summary_path), "(file)", summary, "must be a JSON object")
+    if floor is None:
+        if not summary_path.is_file():
+            raise InputError(
+                str(summary_path),
+                "(file)",
+                "missing",
+                "a run directory written by `fleet run` has summary.json naming the map; "
+                "or pass the floor explicitly",
+            )
+        map_file = summary.get("map")
+        if not isinstance(map_file, str) or not map_file:
+            raise InputError(
+                str(summary_path), "map", map_file, "must be the path of the run's map file"
+            )
+        floor = load_floor(map_file)
+    caps = load_caps(run_dir / "caps.csv")
+    return RunData(run_dir, summary, floor, tracks, caps)
+
+
+def _read_csv(path: Path, columns: Sequence[str]) -> list[tuple[int, dict[str, str]]]:
+    """Rows of a CSV file as ``(line number, row)``, after checking its header has `columns`."""
+    if not path.is_file():
+        raise InputError(
+            str(path),
+            "(file)",
+            "missing",
+            f"a run directory written by `fleet run` has {path.name} with columns "
+            + ",".join(columns),
+        )
+    with open(path, newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        header = reader.fieldnames or []
+        missing = [c for c in columns if c not in header]
+        if missing:
+            raise InputError(
+                str(path),
+                "header",
+                ",".join(header),
+                f"lacks {', '.join(missing)}; needs columns {','.join(columns)}",
+            )
+        # Line numbers as an editor shows them: the header is line 1.
+        return [(reader.line_num, row) for row in reader]
+
+
+def _number(path: Path, line: int, column: str, text: str | None) -> float:
+    try:
+        value = float(text)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InputError(str(path), f"line {line}, {column}", text, "must be a number") from None
+    if math.isnan(value):
+        raise InputError(str(path), f"line {line}, {column}", text, "must be a number, not NaN")
+    return value
+
+
+# -- limits -----------------------------------------------------------------------------------
+def step_limits(track: Track, caps: Iterable[PrintCap] = ()) -> np.ndarray:
+    """The per-axis speed limit in force over each step ``[t[k], t[k+1])`` of `track`.
+
+    ``min(v_zone[k], v_zone[k+1], cap of every task of this robot overlapping the step)``;
+    shape (n - 1,) for n samples.
+    """
+    t = track.t
+    if len(t) < 2:
+        return np.empty(0)
+    limit = np.minimum(track.v_zone[:-1], track.v_zone[1:])
+    t0, t1 = t[:-1], t[1:]
+    for c in caps:
+        if c.robot != track.robot or math.isinf(c.cap):
+            continue
+        overlaps = (c.start_s < t1 - _EPS_S) & (c.end_s > t0 + _EPS_S)
+        limit = np.where(overlaps, np.minimum(limit, c.cap), limit)
+    return limit
+
+
+# -- drawing ----------------------------------------------------------------------------------
+def plot_floor(ax: Axes, floor: Floor, *, labels: bool = True) -> list[Any]:
+    """Draw `floor` on `ax`: zones shaded by limit, obstacles, boundary, rough areas, stations.
+
+    Regions are grouped by speed limit and merged, so the picture shows zones rather than the
+    convex decomposition; the floor's default limit stays white, slower limits get darker
+    colours of one sequential map. Sets equal aspect and metre labels.
+
+    Parameters
+    ----------
+    ax:
+        The axes to draw on.
+    floor:
+        The compiled floor.
+    labels:
+        Write each station's name next to its marker.
+
+    Returns
+    -------
+    list
+        Legend handles (one per zone limit, obstacles, rough floor and station kind), for the
+        caller to place.
+    """
+    spec = floor.spec
+    handles: list[Any] = []
+    # Grey under white free space: what shows grey is the clearance band the robot's centre
+    # may not enter (the boundary shrunk and the obstacles grown by the footprint radius).
+    ax.add_patch(_patch(spec.boundary, facecolor=_CLEARANCE_COLOUR, edgecolor="none", zorder=0))
+    ax.add_patch(_patch(floor.free_space, facecolor="white", edgecolor="none", zorder=0.5))
+
+    by_limit: dict[tuple[float, float], list[Any]] = {}
+    for r in floor.regions:
+        by_limit.setdefault(r.v_max, []).append(r.polygon)
+    default = tuple(spec.default_v_max)
+    limits = sorted(by_limit, key=lambda v: (min(v), max(v)))
+    shaded = [v for v in limits if v != default]
+    cmap = colormaps["YlOrRd"]
+    for rank, limit in enumerate(shaded):
+        # Slowest limit darkest; the range stops short of red, which marks obstacles.
+        level = 0.55 - 0.4 * rank / max(1, len(shaded) - 1) if len(shaded) > 1 else 0.4
+        colour = cmap(level)
+        ax.add_patch(
+            _patch(shapely.union_all(by_limit[limit]), facecolor=colour, edgecolor="none", zorder=1)
+        )
+        handles.append(Patch(facecolor=colour, label=_limit_label(limit)))
+    if default in by_limit:
+        handles.append(
+            Patch(facecolor="white", edgecolor="0.6", label=f"{_limit_label(default)} (default)")
+        )
+
+    for area in spec.rough_areas:
+        ax.add_patch(
+            _patch(area.polygon, facecolor="none", edgecolor="0.45", hatch="///", lw=0, zorder=1.5)
+        )
+    if spec.rough_areas:
+        handles.append(Patch(facecolor="white", edgecolor="0.45", hatch="///", label="rough floor"))
+    for obstacle in spec.obstacles:
+        ax.add_patch(
+            _patch(obstacle.polygon, facecolor=_OBSTACLE_COLOUR, edgecolor="none", zorder=2)
+        )
+    if spec.obstacles:
+        handles.append(Patch(facecolor=_OBSTACLE_COLOUR, label="obstacle"))
+    if spec.clearance > 0:
+        handles.append(
+            Patch(facecolor=_CLEARANCE_COLOUR, label=f"clearance ({spec.clearance:g} m)")
+        )
+    ax.add_patch(_patch(spec.boundary, facecolor="none", edgecolor="black", lw=1.2, zorder=2))
+
+    markers = {"depot": "s", "delivery": "^", "charger": "P"}
+    spare = iter(("D", "v", "p", "h", "*", "<", ">", "d"))
+    kinds_seen: set[str] = set()
+    for s in spec.stations:
+        if s.kind not in markers:  # kinds are free text in map files: one marker each
+            markers[s.kind] = next(spare, "o")
+        ax.plot(s.x, s.y, markers[s.kind], ms=6, mfc="#1f3b73", mec="white", mew=0.8, zorder=4)
+        if labels:
+            ax.annotate(
+                s.name,
+                (s.x, s.y),
+                xytext=(4, 4),
+                textcoords="offset points",
+                fontsize=7,
+                color="#1f3b73",
+                zorder=4,
+            )
+        if s.kind not in kinds_seen:
+            kinds_seen.add(s.kind)
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    ls="none",
+                    marker=markers[s.kind],
+                    mfc="#1f3b73",
+                    mec="white",
+                    label=f"station ({s.kind})",
+                )
+            )
+
+    xmin, ymin, xmax, ymax = floor.bounds
+    pad = 0.02 * max(xmax - xmin, ymax - ymin)
+    ax.set_xlim(xmin - pad, xmax + pad)
+    ax.set_ylim(ymin - pad, ymax + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    return handles
+
+
+def trajectory_figure(
+    floor: Floor,
+    tracks: Mapping[str, Track],
+    plans: Mapping[str, Sequence[tuple[float, float, float]]] | None = None,
+    *,
+    robots: int = 6,
+    title: str | None = None,
+) -> Figure:
+    """The paper's trajectory figure: every robot's path over the zone map.
+
+    Parameters
+    ----------
+    floor:
+        The run's floor.
+    tracks:
+        Robot id -> `Track` (as `load_tracks` returns).
+    plans:
+        Optional robot id -> plan samples ``(t, x, y)`` (a controller's latest plan), drawn
+        dashed in the robot's colour.
+    robots:
+        Up to this many robots each get a colour, start/end markers and a legend entry; with
+        more, all paths are drawn thin in one colour without per-robot entries.
+    title:
+        Figure title.
+
+    Returns
+    -------
+    Figure
+        With one axes; each path is a `Line2D` whose gid is ``"path:<robot>"``.
+    """
+    fig = _figure(_floor_size(floor))
+    ax = fig.add_subplot()
+    handles = plot_floor(ax, floor)
+    few = len(tracks) <= robots
+    colours = colormaps["tab10"].colors
+    for i, (rid, tr) in enumerate(tracks.items()):
+        if len(tr.t) == 0:
+            continue
+        colour = colours[i % len(colours)] if few else "#1f3b73"
+        (line,) = ax.plot(
+            tr.xy[:, 0],
+            tr.xy[:, 1],
+            color=colour,
+            lw=1.6 if few else 0.6,
+            alpha=1.0 if few else 0.6,
+            zorder=3,
+            label=rid if few else "_nolegend_",
+            gid=f"path:{rid}",
+        )
+        if few:
+            handles.append(line)
+        ms = 6 if few else 3
+        ax.plot(*tr.xy[0], "o", ms=ms, mfc=colour, mec="black", mew=0.6, zorder=5)
+        ax.plot(*tr.xy[-1], "X", ms=ms + 1, mfc=colour, mec="black", mew=0.6, zorder=5)
+        plan = (plans or {}).get(rid)
+        if plan:
+            p = np.asarray(plan, dtype=float).reshape(-1, 3)
+            ax.plot(p[:, 1], p[:, 2], ls="--", lw=1.0, color=colour, zorder=3)
+    if not few:
+        handles.append(Line2D([], [], color="#1f3b73", lw=0.6, label=f"paths ({len(tracks)})"))
+    if any(len(tr.t) for tr in tracks.values()):
+        handles += [
+            Line2D([], [], ls="none", marker="o", mfc="white", mec="black", label="start"),
+            Line2D([], [], ls="none", marker="X", mfc="white", mec="black", label="end"),
+        ]
+    fig.legend(handles=handles, loc="outside right upper", fontsize=8, frameon=False)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def speed_figure(
+    tracks: Mapping[str, Track],
+    caps: Sequence[PrintCap] = (),
+    *,
+    robots: int = 6,
+    title: str | None = None,
+) -> Figure:
+    """The paper's velocity figure: vx, vy and the limit in force against time, per robot.
+
+    One panel per robot (the first `robots` in id order), on a shared time axis. Velocities are
+    drawn as steps (``v[k]`` held over ``[t[k], t[k+1])``); the limit of `step_limits` as a
+    ``+/-`` step line; the robot's print tasks are shaded by kind.
+
+    Returns
+    -------
+    Figure
+        One axes per robot shown, in order, each titled with the robot id. Lines carry gids
+        ``"vx"``, ``"vy"``, ``"limit+"`` and ``"limit-"`` (the limit lines' y-data holds one
+        value per step plus the last one repeated, as `Axes.step` needs).
+    """
+    shown = list(tracks)[: max(0, robots)]
+    fig = _figure((10.0, 1.2 + 2.0 * max(1, len(shown))))
+    if not shown:
+        ax = fig.add_subplot()
+        ax.text(0.5, 0.5, "no trajectory samples", ha="center", va="center")
+        ax.set_axis_off()
+        return fig
+    axes = fig.subplots(len(shown), 1, sharex=True, squeeze=False)[:, 0]
+    kinds_seen: dict[str, Patch] = {}
+    for ax, rid in zip(axes, shown, strict=True):
+        tr = tracks[rid]
+        mine = [c for c in caps if c.robot == rid]
+        for c in mine:
+            colour = KIND_COLOURS.get(c.kind, KIND_COLOURS["other"])
+            ax.axvspan(c.start_s, c.end_s, color=colour, alpha=0.15, lw=0, zorder=0)
+            if c.kind not in kinds_seen:
+                kinds_seen[c.kind] = Patch(facecolor=colour, alpha=0.3, label=f"print: {c.kind}")
+        if len(tr.t):
+            ax.step(tr.t, tr.v[:, 0], where="post", lw=1.0, color="#1f77b4", gid="vx")
+            ax.step(tr.t, tr.v[:, 1], where="post", lw=1.0, color="#ff7f0e", gid="vy")
+        limit = step_limits(tr, mine)
+        if len(limit):
+            held = np.append(limit, limit[-1])
+            for sign, gid in ((1.0, "limit+"), (-1.0, "limit-")):
+                ax.step(tr.t, sign * held, where="post", color="black", lw=0.9, ls="--", gid=gid)
+        ax.axhline(0.0, color="0.8", lw=0.5, zorder=0)
+        ax.set_title(rid, loc="left", fontsize=9)
+        ax.set_ylabel("v (m/s)")
+    axes[-1].set_xlabel("t (s)")
+    handles: list[Any] = [
+        Line2D([], [], color="#1f77b4", lw=1.0, label="vx"),
+        Line2D([], [], color="#ff7f0e", lw=1.0, label="vy"),
+        Line2D([], [], color="black", lw=0.9, ls="--", label="limit (zone, print cap)"),
+        *kinds_seen.values(),
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8)
+    heading = title or ""
+    if len(tracks) > len(shown):
+        heading = f"{heading}\n" if heading else ""
+        heading += f"first {len(shown)} of {len(tracks)} robots"
+    if heading:
+        fig.suptitle(heading)
+    return fig
+
+
+def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int = 6) -> list[Path]:
+    """Write ``trajectory.png`` and ``speed.png`` into `run_dir` from the files there.
+
+    Parameters
+    ----------
+    run_dir:
+        A run directory written by `fleet run` (``trajectories.csv`` required, ``caps.csv``
+        optional, ``summary.json`` required when `floor` is None).
+    floor:
+        The run's floor; None loads the map named in ``summary.json``.
+    robots:
+        At most this many robots get their own colour and their own speed panel.
+
+    Returns
+    -------
+    list of Path
+        The two PNG files, trajectory first.
+
+    Raises
+    ------
+    InputError
+        See `load_run`.
+    """
+    run = load_run(Path(run_dir), floor)
+    out = [run.run_dir / TRAJECTORY_PNG, run.run_dir / SPEED_PNG]
+    figures = [
+        trajectory_figure(run.floor, run.tracks, robots=robots, title=run.title),
+        speed_figure(run.tracks, run.caps, robots=robots, title=run.title),
+    ]
+    for fig, path in zip(figures, out, strict=True):
+        fig.savefig(path, dpi=_DPI)
+    return out
+
+
+# -- helpers ----------------------------------------------------------------------------------
+def _figure(size: tuple[float, float]) -> Figure:
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)  # attaches itself: savefig renders with Agg, no pyplot involved
+    return fig
+
+
+def _floor_size(floor: Floor) -> tuple[float, float]:
+    """Figure size (inches): the floor at its own aspect, axis labels, a legend column right."""
+    xmin, ymin, xmax, ymax = floor.bounds
+    ratio = (ymax - ymin) / max(xmax - xmin, 1e-9)
+    width = 8.0
+    height = width * ratio
+    if height > 8.0:  # a tall floor: fit the height, narrow the drawing
+        width, height = 8.0 / ratio, 8.0
+    return (max(width, 3.0) + 3.5, max(height, 2.5) + 1.2)
+
+
+def _limit_label(v: tuple[float, float]) -> str:
+    return f"{v[0]:g} m/s" if v[0] == v[1] else f"{v[0]:g} x {v[1]:g} m/s"
+
+
+def _patch(geom: BaseGeometry, **kwargs: Any) -> PathPatch:
+    """A patch for a (multi)polygon with holes; rings oriented so holes stay unfilled."""
+    vertices: list[np.ndarray] = []
+    codes: list[np.ndarray] = []
+    for poly in shapely.get_parts(geom):
+        if poly.geom_type != "Polygon" or poly.is_empty:
+            continue  # a union can leave slivers of lower dimension: nothing to fill
+        poly = shapely.orient_polygons(poly)
+        for ring in (poly.exterior, *poly.interiors):
+            xy = np.asarray(ring.coords)
+            c = np.full(len(xy), MplPath.LINETO, dtype=np.uint8)
+            c[0], c[-1] = MplPath.MOVETO, MplPath.CLOSEPOLY
+            vertices.append(xy)
+            codes.append(c)
+    if not vertices:
+        return PathPatch(MplPath(np.empty((0, 2))), **kwargs)
+    return PathPatch(MplPath(np.concatenate(vertices), np.concatenate(codes)), **kwargs)

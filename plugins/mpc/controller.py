@@ -1,0 +1,346 @@
+"""`MPCController`: the paper's mixed-integer MPC, tracking the path layer's reference.
+
+Per control tick: take the measured state, pick the reference window and the corridor of
+regions each horizon step may use, update the trip's model (`model.TripModel`), solve it with
+HiGHS and apply the first input. The trip model is built once per reference and updated in
+place; a new goal, or a fallback, starts a new trip.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import time
+from typing import Any
+
+import numpy as np
+
+from fleet.errors import NoPathError
+from fleet.plugins import (
+    CAP_LOOKAHEAD_S,
+    Command,
+    Controller,
+    ControllerContext,
+    ControlStatus,
+    Observation,
+    SolveReport,
+)
+from fleet.printing import CapSchedule
+from fleet.robot import brake_input
+from fleet_plugins.mpc.model import Interface, Solution, StepData, TripModel
+from fleet_plugins.mpc.trip import Trip, reach_boxes
+
+__all__ = ["MPCController"]
+
+#: Per-axis speed (m/s) below which the robot counts as at rest.
+REST_SPEED = 1e-9
+#: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
+PLAN_MATCH = 1e-6
+#: How far ahead (samples) the progress search along the reference looks.
+PROGRESS_WINDOW = 8
+
+
+class MPCController(Controller):
+    """Mixed-integer MPC over the floor's convex regions, solved by HiGHS through Pyomo.
+
+    The paper's formulation: double integrator, zone speed limits as a Big-M union over the
+    regions (M tight per row), time-varying print caps per horizon step, input bounds, horizon
+    `horizon` with the robot's control period as step. HiGHS cannot solve the paper's
+    quadratic cost with binaries (MIQP), so the cost is the 1-norm of the same terms (a MILP,
+    measured as the fastest and first-arriving choice; docs/mpc.md compares the candidates).
+
+    The reference is the path layer's time-parameterised trajectory to the goal (tracking only
+    the goal stalls in front of obstacles). While the robot keeps pace, step k tracks reference
+    sample ``index(t) + k``; when it falls behind (print caps slow it down) the window follows
+    its progress along the path instead, one sample ahead, so the reference never runs away.
+
+    Each step k = 1..N-1 may only use the regions of the reference chords around its expected
+    progress (±`corridor` chords) plus the region the previous plan used there, and only those
+    whose bounding box meets the reachable box of the step: a handful of binaries per solve.
+
+    When a solve gives no usable solution (time limit without incumbent, infeasible, solver
+    error) the controller falls back: the previous plan shifted by one step if the robot is on
+    it (it ends at rest, so it stays safe to its end), else braking along the line of travel.
+    It then plans a new trip. Every command carries a `SolveReport`.
+
+    Parameters
+    ----------
+    horizon:
+        N, the number of steps (the paper: 25).
+    q_position, q_velocity, r_input:
+        Cost weights (the paper: Q = R = I).
+    corridor:
+        Reference chords either side of the expected progress whose regions a step may use.
+    time_limit_s:
+        Wall-clock limit per solve (s); a solve stopped with an incumbent uses it.
+    warm_start:
+        Offer HiGHS the shifted previous plan as a starting solution.
+    interface:
+        ``"direct"`` (default): per-step bounds written into the persistent HiGHS object by
+        index; ``"pyomo"``: mutable Params through Pyomo's persistent update (slower, same model).
+    """
+
+    name = "mpc"
+
+    def __init__(
+        self,
+        horizon: int = 25,
+        q_position: float = 1.0,
+        q_velocity: float = 1.0,
+        r_input: float = 1.0,
+        corridor: int = 1,
+        time_limit_s: float = 1.0,
+        warm_start: bool = True,
+        interface: str = "direct",
+    ) -> None:
+        super().__init__()
+        if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 2:
+            raise ValueError(f"MPCController option horizon = {horizon!r}: must be an integer >= 2")
+        for label, w in (
+            ("q_position", q_position),
+            ("q_velocity", q_velocity),
+            ("r_input", r_input),
+        ):
+            if not _non_negative(w):
+                raise ValueError(f"MPCController option {label} = {w!r}: must be a number >= 0")
+        if isinstance(corridor, bool) or not isinstance(corridor, int) or corridor < 0:
+            raise ValueError(
+                f"MPCController option corridor = {corridor!r}: must be an integer >= 0"
+            )
+        if not _non_negative(time_limit_s) or time_limit_s == 0:
+            raise ValueError(
+                f"MPCController option time_limit_s = {time_limit_s!r}: must be a number > 0"
+            )
+        if not isinstance(warm_start, bool):
+            raise ValueError(f"MPCController option warm_start = {warm_start!r}: must be a bool")
+        try:
+            self.interface = Interface(interface)
+        except ValueError:
+            allowed = ", ".join(repr(i.value) for i in Interface)
+            raise ValueError(
+                f"MPCController option interface = {interface!r}: must be one of {allowed}"
+            ) from None
+        self.horizon = horizon
+        self.weights = (float(q_position), float(q_velocity), float(r_input))
+        self.corridor = corridor
+        self.time_limit_s = float(time_limit_s)
+        self.warm_start = warm_start
+        self._clear()
+
+    def __repr__(self) -> str:
+        return (
+            f"MPCController(horizon={self.horizon}, weights={self.weights}, "
+            f"corridor={self.corridor}, time_limit_s={self.time_limit_s}, "
+            f"warm_start={self.warm_start}, interface={self.interface.value!r})"
+        )
+
+    def reset(self, context: ControllerContext) -> None:
+        """Keep the context; check the horizon fits the engine's cap look-ahead."""
+        super().reset(context)
+        span = self.horizon * context.spec.period
+        if span > CAP_LOOKAHEAD_S:
+            raise ValueError(
+                f"MPCController horizon {self.horizon} x period {context.spec.period:g} s = "
+                f"{span:g} s reaches past the {CAP_LOOKAHEAD_S:g} s of print caps an "
+                "observation carries; shorten the horizon"
+            )
+        self._clear()
+
+    def _clear(self) -> None:
+        self._goal: tuple[float, float] | None = None
+        self._trip: Trip | None = None
+        self._model: TripModel | None = None
+        self._last: Solution | None = None  # the latest usable solution (or its shifted copy)
+        self._last_model: TripModel | None = None  # the model `_last` came from
+        self._last_t = math.nan
+        self._progress = 0
+        self._failed: tuple[Any, ...] | None = None
+        #: Trips built so far (a new goal or a fallback starts one).
+        self.trips = 0
+
+    # -- the control law ------------------------------------------------------------------------
+    def compute(self, obs: Observation) -> Command:
+        """The first input of this tick's optimal plan (or a safe fallback)."""
+        started = time.perf_counter()
+        spec = self.context.spec
+        if obs.goal is None:
+            self._goal = self._trip = self._model = self._last = None
+            return self._brake(obs, ControlStatus.IDLE)
+        goal = (float(obs.goal[0]), float(obs.goal[1]))
+        if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
+            return self._brake(obs, ControlStatus.FALLBACK)
+        assert self._trip is not None and self._model is not None
+        data, warm = self._step_data(obs)
+        solution = self._model.solve(data, warm)
+        step_s = time.perf_counter() - started
+        report = SolveReport(solution.outcome, solution.solver_s, step_s)
+        if solution.outcome.usable:
+            assert solution.p is not None and solution.u is not None
+            self._last, self._last_t, self._last_model = solution, obs.t, self._model
+            dt = spec.period
+            plan = tuple(
+                (obs.t + k * dt, float(solution.p[k, 0]), float(solution.p[k, 1]))
+                for k in range(len(solution.p))
+            )
+            u = solution.u[0]
+            return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
+        return self._fallback(obs, report)
+
+    def _new_trip(self, obs: Observation, goal: tuple[float, float]) -> bool:
+        """Plan a reference from here to `goal` and build its model; False if there is no path."""
+        spec = self.context.spec
+        attempt = (goal, obs.x, obs.y)
+        if self._failed == attempt:
+            return False
+        try:
+            ref = self.context.planner.reference(
+                start=(obs.x, obs.y), goal=goal, dt=spec.period, t0=obs.t
+            )
+        except NoPathError:
+            self._failed = attempt
+            return False
+        self._trip = Trip.build(self.context.floor, ref)
+        self._model = TripModel(
+            self._trip,
+            self.horizon,
+            spec.period,
+            spec.a_max,
+            spec.v_max,
+            self.weights,
+            self.interface,
+            self.time_limit_s,
+        )
+        self._goal, self._failed, self._progress = goal, None, 0
+        self.trips += 1
+        return True
+
+    def _step_data(self, obs: Observation) -> tuple[StepData, np.ndarray | None]:
+        """Bounds, corridor and reference window for this tick (and a warm start, if any)."""
+        spec = self.context.spec
+        trip, model = self._trip, self._model
+        assert trip is not None and model is not None
+        N, dt, a = self.horizon, spec.period, spec.a_max
+        ref = trip.reference
+        last_index = ref.steps
+        p0 = np.array([obs.x, obs.y])
+        v0 = np.array([obs.vx, obs.vy])
+
+        # Speed bounds per step: robot limit and print caps, never below what braking at full
+        # deceleration reaches (a cap that starts too soon is then missed by the least possible,
+        # instead of making the problem infeasible).
+        caps = CapSchedule(obs.speed_caps).step_caps(obs.t, dt, N + 1)
+        bound = np.minimum(spec.v_max, caps)[:, None].repeat(2, axis=1)
+        bound[N] = 0.0  # end at rest
+        braking = np.abs(v0)[None, :] - np.arange(N + 1)[:, None] * a * dt
+        bound = np.maximum(bound, braking)
+        p_lo, p_hi = reach_boxes(p0, v0, bound, dt, a)
+        xlo, ylo, xhi, yhi = trip.box
+        p_lo[1:] = np.maximum(p_lo[1:], [xlo, ylo])
+        p_hi[1:] = np.minimum(p_hi[1:], [xhi, yhi])
+        p_hi[1:] = np.maximum(p_hi[1:], p_lo[1:])  # empty box: leave it to HiGHS to say so
+        v_lo, v_hi = -bound.copy(), bound.copy()
+        v_lo[0] = v_hi[0] = v0
+
+        # Where along the reference: on time, the timed sample; behind, just past the progress.
+        self._progress = int(trip.progress(p0[None, :], self._progress, PROGRESS_WINDOW)[0])
+        timed = ref.index(obs.t)
+        base = min(max(timed, self._progress), self._progress + 1)
+        idx = np.minimum(base + np.arange(N + 1), last_index)
+        p_ref = ref.positions[idx]
+        v_ref = ref.velocities[idx]
+
+        # Corridor: chords around both where the reference is and where the last plan expected
+        # the robot to be, plus the region the last plan used (so the shifted plan stays open).
+        # (The last plan's regions are positions in its own trip's S: only reuse them there.)
+        on_plan = self._on_plan(obs) and self._last_model is model
+        expected = base + np.arange(N + 1)
+        if on_plan:
+            assert self._last is not None and self._last.p is not None
+            shifted = np.vstack([self._last.p[1:], self._last.p[-1:]])
+            expected = trip.progress(shifted, self._progress, N + PROGRESS_WINDOW)
+        z_ub = np.zeros((N - 1, len(trip.regions)))
+        w = self.corridor
+        for k in range(1, N):
+            lo = min(expected[k], base + k) - w
+            hi = max(expected[min(k + 1, N)], base + k) + w
+            allowed = set(trip.corridor(lo, hi))
+            if on_plan:
+                assert self._last is not None and self._last.regions is not None
+                allowed.add(int(self._last.regions[min(k, N - 2)]))
+            for j in allowed:
+                z_ub[k - 1, j] = 1.0
+            # Keep only regions whose box meets where the step can be.
+            lo_box = np.minimum(p_lo[k], p_lo[k + 1])
+            hi_box = np.maximum(p_hi[k], p_hi[k + 1])
+            rb = trip.region_boxes
+            outside = (
+                (rb[:, 0] > hi_box[0] + 1e-9)
+                | (rb[:, 2] < lo_box[0] - 1e-9)
+                | (rb[:, 1] > hi_box[1] + 1e-9)
+                | (rb[:, 3] < lo_box[1] - 1e-9)
+            )
+            z_ub[k - 1, outside] = 0.0
+        data = StepData(p_lo, p_hi, v_lo, v_hi, z_ub, p_ref, v_ref)
+        warm = None
+        if self.warm_start and on_plan:
+            assert self._last is not None
+            warm = model.shifted_columns(self._last, data)
+        return data, warm
+
+    def _on_plan(self, obs: Observation) -> bool:
+        """Whether the robot is where the last usable plan said it would be now."""
+        last = self._last
+        if last is None or last.p is None or last.v is None:
+            return False
+        if abs(obs.t - self._last_t - self.context.spec.period) > 1e-9:
+            return False
+        return (
+            max(abs(last.p[1, 0] - obs.x), abs(last.p[1, 1] - obs.y)) <= PLAN_MATCH
+            and max(abs(last.v[1, 0] - obs.vx), abs(last.v[1, 1] - obs.vy)) <= PLAN_MATCH
+        )
+
+    # -- fallbacks ------------------------------------------------------------------------------
+    def _fallback(self, obs: Observation, report: SolveReport) -> Command:
+        """The shifted previous plan if the robot is on it, else braking; then a new trip."""
+        on_plan = self._on_plan(obs)
+        self._model = None  # plan a new trip next tick
+        if on_plan:
+            last = self._last
+            assert last is not None and last.p is not None and last.v is not None
+            assert last.u is not None and last.regions is not None
+            # Move the stored plan one step on, so a run of fallbacks walks down it to rest.
+            shifted = Solution(
+                last.outcome,
+                last.solver_s,
+                p=np.vstack([last.p[1:], last.p[-1:]]),
+                v=np.vstack([last.v[1:], np.zeros((1, 2))]),
+                u=np.vstack([last.u[1:], np.zeros((1, 2))]),
+                regions=np.concatenate([last.regions[1:], last.regions[-1:]]),
+            )
+            self._last, self._last_t = shifted, obs.t
+            u = last.u[1]
+            dt = self.context.spec.period
+            plan = tuple(
+                (obs.t + k * dt, float(shifted.p[k, 0]), float(shifted.p[k, 1]))
+                for k in range(len(shifted.p))
+            )
+            return Command(float(u[0]), float(u[1]), ControlStatus.FALLBACK, plan, report)
+        self._last = None
+        cmd = self._brake(obs, ControlStatus.FALLBACK)
+        return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report)
+
+    def _brake(self, obs: Observation, status: ControlStatus) -> Command:
+        if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
+            return Command(0.0, 0.0, status)
+        spec = self.context.spec
+        ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
+        return Command(ax, ay, status)
+
+
+def _non_negative(x: object) -> bool:
+    return (
+        not isinstance(x, bool)
+        and isinstance(x, numbers.Real)
+        and math.isfinite(float(x))
+        and float(x) >= 0
+    )

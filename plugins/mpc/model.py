@@ -1,0 +1,382 @@
+"""The trip's mixed-integer MPC as a Pyomo model, kept in a persistent HiGHS instance.
+
+One model per trip (reference), built once and updated in place every control step. The
+formulation, for horizon steps k = 0..N with step dt:
+
+- double integrator ``p[k+1] = p[k] + dt v[k]``, ``v[k+1] = v[k] + dt u[k]``, ``|u| <= a_max``;
+  p[0], v[0] fixed to the measured state (their bounds);
+- for each step k = 1..N-1 one binary z[k, j] per region j of the trip's set S (sum 1):
+  ``z = 1 => A_j p[k] <= b_j, A_j p[k+1] <= b_j, |v[k]| <= v_max_j`` (the whole step in one
+  convex region, so the segment is free and within the region's limit), written with Big-M
+  rows whose M is tight per row over the trip box; plus the midpoint cut on faces next to a
+  slower region; step 0 is already fixed by the measured state;
+- print caps and the robot's limit as bounds on v[k]; ``v[N] = 0`` (the plan ends at rest, so
+  the shifted plan is always a feasible fallback);
+- cost: the 1-norm tracking of the reference (position and velocity, weights Q) plus input
+  effort (weight R), via epigraph variables: a MILP that HiGHS solves.
+
+Per step only bounds change: p, v (measured state, caps, reachable boxes), z (corridor: a 0
+upper bound switches a region off for a step) and the right-hand sides of the tracking rows
+(the reference). Two ways to push them into HiGHS (`Interface`): through Pyomo's persistent
+interface (mutable Params, ``update_parameters``) or written straight into the HiGHS object
+that interface holds, by the column/row indices it assigned (no Pyomo expression
+re-evaluation: 1.2x HiGHS time instead of ~2x; see docs/mpc.md).
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass
+
+import highspy
+import numpy as np
+import pyomo.environ as pyo
+from pyomo.contrib.solver.solvers.highs import Highs as PersistentHighs
+
+from fleet.plugins import SolverOutcome
+from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
+
+__all__ = ["Interface", "TripModel", "StepData", "Solution", "HIGHS_OPTIONS"]
+
+#: HiGHS options for these small MILPs (measured in docs/mpc-study.md): the sub-MIP
+#: heuristics and restarts cost up to a second on a 300-row MILP and never pay off here;
+#: the tight feasibility tolerance keeps Big-M leakage (M * 1e-6) far below the checker's 1e-6 m.
+HIGHS_OPTIONS: dict[str, object] = {
+    "output_flag": False,
+    "mip_heuristic_run_rins": False,
+    "mip_heuristic_run_rens": False,
+    "mip_heuristic_run_root_reduced_cost": False,
+    "mip_heuristic_run_feasibility_jump": False,
+    "mip_allow_restart": False,
+    "mip_feasibility_tolerance": 1e-9,
+}
+
+
+class Interface(enum.Enum):
+    """How per-step data reaches HiGHS."""
+
+    DIRECT = "direct"
+    """Bounds written into the persistent interface's HiGHS object by index (fast)."""
+    PYOMO = "pyomo"
+    """Mutable Params and the persistent interface's own update (the reference path)."""
+
+
+@dataclass
+class StepData:
+    """Everything that changes from one control step to the next (numpy arrays)."""
+
+    p_lo: np.ndarray  # (N+1, 2)
+    p_hi: np.ndarray
+    v_lo: np.ndarray  # (N+1, 2)
+    v_hi: np.ndarray
+    z_ub: np.ndarray  # (N-1, |S|) 0/1, rows = steps 1..N-1
+    p_ref: np.ndarray  # (N+1, 2)
+    v_ref: np.ndarray  # (N+1, 2)
+
+
+@dataclass
+class Solution:
+    """One solve: outcome, times and (when usable) the plan."""
+
+    outcome: SolverOutcome
+    solver_s: float
+    p: np.ndarray | None = None  # (N+1, 2)
+    v: np.ndarray | None = None
+    u: np.ndarray | None = None  # (N, 2)
+    regions: np.ndarray | None = None  # (N-1,) position in S used at steps 1..N-1
+    columns: np.ndarray | None = None  # the raw column values (for warm starts)
+
+
+class TripModel:
+    """The Pyomo model of one trip and its persistent HiGHS instance.
+
+    Parameters
+    ----------
+    trip:
+        The trip's regions and faces.
+    horizon:
+        N, the number of steps.
+    dt, a_max, v_robot:
+        Step (s), per-axis input bound (m/s^2), the robot's per-axis speed limit (m/s).
+    weights:
+        ``(q_position, q_velocity, r_input)`` of the 1-norm cost.
+    interface:
+        How per-step data reaches HiGHS.
+    time_limit_s:
+        Wall-clock limit per solve.
+    """
+
+    def __init__(
+        self,
+        trip: Trip,
+        horizon: int,
+        dt: float,
+        a_max: float,
+        v_robot: float,
+        weights: tuple[float, float, float],
+        interface: Interface,
+        time_limit_s: float,
+    ) -> None:
+        self.trip = trip
+        self.N = horizon
+        self.interface = interface
+        self.time_limit_s = time_limit_s
+        self.model = _build(trip, horizon, dt, a_max, v_robot, weights)
+        self.solver = PersistentHighs()
+        self.solver.config.timer = None
+        self._options = dict(HIGHS_OPTIONS, time_limit=float(time_limit_s))
+        self.solver.set_instance(self.model)
+        self.highs: highspy.Highs = self.solver._solver_model
+        for key, value in self._options.items():
+            self.highs.setOptionValue(key, value)
+        self._index()
+        cfg = self.solver.config.auto_updates
+        # Only Params change between solves; skip the structural scans.
+        for name in (
+            "check_for_new_or_removed_constraints",
+            "check_for_new_or_removed_vars",
+            "check_for_new_or_removed_params",
+            "check_for_new_objective",
+            "update_constraints",
+            "update_vars",
+            "update_named_expressions",
+            "update_objective",
+        ):
+            setattr(cfg, name, False)
+        cfg.update_parameters = True
+
+    @property
+    def binaries(self) -> int:
+        """Columns z of the whole trip model (most are switched off per step)."""
+        return len(self._z_cols)
+
+    # -- index maps from the persistent interface -----------------------------------------------
+    def _index(self) -> None:
+        m = self.model
+        var_map = self.solver._pyomo_var_to_solver_var_map
+        con_map = self.solver._pyomo_con_to_solver_con_map
+        N, S = self.N, len(self.trip.regions)
+
+        def cols(var, keys) -> np.ndarray:
+            return np.array([var_map[id(var[key])] for key in keys], dtype=np.int32)
+
+        pk = [(k, a) for k in range(N + 1) for a in (0, 1)]
+        self._p_cols = cols(m.p, pk)
+        self._v_cols = cols(m.v, pk)
+        self._u_cols = cols(m.u, [(k, a) for k in range(N) for a in (0, 1)])
+        self._z_keys = [(k, j) for k in range(1, N) for j in range(S)]
+        self._z_cols = cols(m.z, self._z_keys)
+        self._ep_cols = cols(m.ep, [(k, a) for k in range(1, N + 1) for a in (0, 1)])
+        self._ev_cols = cols(m.ev, [(k, a) for k in range(1, N + 1) for a in (0, 1)])
+        self._eu_cols = cols(m.eu, [(k, a) for k in range(N) for a in (0, 1)])
+        ka = [(k, a) for k in range(1, N + 1) for a in (0, 1)]
+        self._rows_p_up = np.array([con_map[m.track_p_up[key]] for key in ka], dtype=np.int32)
+        self._rows_p_dn = np.array([con_map[m.track_p_dn[key]] for key in ka], dtype=np.int32)
+        self._rows_v_up = np.array([con_map[m.track_v_up[key]] for key in ka], dtype=np.int32)
+        self._rows_v_dn = np.array([con_map[m.track_v_dn[key]] for key in ka], dtype=np.int32)
+        self._n_cols = self.highs.getNumCol()
+
+    # -- per step -------------------------------------------------------------------------------
+    def solve(self, data: StepData, warm: np.ndarray | None = None) -> Solution:
+        """Push `data` into the model, solve, and read the plan."""
+        if self.interface is Interface.DIRECT:
+            self._write_direct(data)
+            if warm is not None:
+                self._warm_start(warm)
+            t0 = time.perf_counter()
+            self.highs.run()
+            solver_s = time.perf_counter() - t0
+        else:
+            self._write_params(data)
+            before = self.highs.getRunTime()
+            opts = self.solver.config
+            opts.load_solutions = False
+            opts.raise_exception_on_nonoptimal_result = False
+            opts.time_limit = self.time_limit_s
+            opts.solver_options = {k: v for k, v in self._options.items() if k != "time_limit"}
+            self.solver.solve(self.model)
+            solver_s = self.highs.getRunTime() - before
+        return self._read(solver_s)
+
+    def _write_direct(self, d: StepData) -> None:
+        h = self.highs
+        N = self.N
+        lo = np.concatenate([d.p_lo[: N + 1].ravel(), d.v_lo.ravel(), np.zeros(len(self._z_cols))])
+        hi = np.concatenate([d.p_hi[: N + 1].ravel(), d.v_hi.ravel(), d.z_ub.ravel()])
+        idx = np.concatenate([self._p_cols, self._v_cols, self._z_cols])
+        h.changeColsBounds(len(idx), idx, lo, hi)
+        p_ref = d.p_ref[1:].ravel()
+        v_ref = d.v_ref[1:].ravel()
+        rows = np.concatenate([self._rows_p_up, self._rows_p_dn, self._rows_v_up, self._rows_v_dn])
+        up = np.concatenate([p_ref, -p_ref, v_ref, -v_ref])
+        h.changeRowsBounds(len(rows), rows, np.full(len(rows), -highspy.kHighsInf), up)
+
+    def _write_params(self, d: StepData) -> None:
+        m = self.model
+        N, S = self.N, len(self.trip.regions)
+        for k in range(N + 1):
+            for a in (0, 1):
+                m.p_lo[k, a] = float(d.p_lo[k, a])
+                m.p_hi[k, a] = float(d.p_hi[k, a])
+                m.v_lo[k, a] = float(d.v_lo[k, a])
+                m.v_hi[k, a] = float(d.v_hi[k, a])
+                m.p_ref[k, a] = float(d.p_ref[k, a])
+                m.v_ref[k, a] = float(d.v_ref[k, a])
+        for k in range(1, N):
+            for j in range(S):
+                m.z_ub[k, j] = float(d.z_ub[k - 1, j])
+
+    def _warm_start(self, columns: np.ndarray) -> None:
+        sol = highspy.HighsSolution()
+        sol.col_value = columns.tolist()
+        sol.value_valid = True
+        self.highs.setSolution(sol)
+
+    def _read(self, solver_s: float) -> Solution:
+        h = self.highs
+        status = h.getModelStatus()
+        has_solution = h.getInfo().primal_solution_status == 2
+        S = highspy.HighsModelStatus
+        if status == S.kOptimal:
+            outcome = SolverOutcome.OPTIMAL
+        elif status == S.kInfeasible:
+            outcome = SolverOutcome.INFEASIBLE
+        elif status in (S.kTimeLimit, S.kIterationLimit, S.kSolutionLimit, S.kInterrupt):
+            outcome = SolverOutcome.FEASIBLE if has_solution else SolverOutcome.NO_SOLUTION
+        else:
+            outcome = SolverOutcome.ERROR
+        if not outcome.usable:
+            return Solution(outcome, solver_s)
+        col = np.asarray(h.getSolution().col_value)
+        N = self.N
+        z = col[self._z_cols].reshape(N - 1, len(self.trip.regions))
+        return Solution(
+            outcome,
+            solver_s,
+            p=col[self._p_cols].reshape(N + 1, 2),
+            v=col[self._v_cols].reshape(N + 1, 2),
+            u=col[self._u_cols].reshape(N, 2),
+            regions=np.argmax(z, axis=1),
+            columns=col,
+        )
+
+    def shifted_columns(self, sol: Solution, data: StepData) -> np.ndarray:
+        """The previous solution moved one step on (plus rest at its end) as a MIP start."""
+        assert sol.p is not None and sol.v is not None and sol.u is not None
+        assert sol.regions is not None
+        N, S = self.N, len(self.trip.regions)
+        p = np.vstack([sol.p[1:], sol.p[-1:]])
+        v = np.vstack([sol.v[1:], np.zeros((1, 2))])
+        u = np.vstack([sol.u[1:], np.zeros((1, 2))])
+        regions = np.concatenate([sol.regions[1:], sol.regions[-1:]])
+        z = np.zeros((N - 1, S))
+        z[np.arange(N - 1), regions] = 1.0
+        col = np.zeros(self._n_cols)
+        col[self._p_cols] = p.ravel()
+        col[self._v_cols] = v.ravel()
+        col[self._u_cols] = u.ravel()
+        col[self._z_cols] = z.ravel()
+        col[self._ep_cols] = np.abs(p[1:] - data.p_ref[1:]).ravel()
+        col[self._ev_cols] = np.abs(v[1:] - data.v_ref[1:]).ravel()
+        col[self._eu_cols] = np.abs(u).ravel()
+        return col
+
+
+def _build(
+    trip: Trip,
+    N: int,
+    dt: float,
+    a_max: float,
+    v_robot: float,
+    weights: tuple[float, float, float],
+) -> pyo.ConcreteModel:
+    """The trip's Pyomo model: variables, Big-M region rows, tracking epigraph, cost."""
+    m = pyo.ConcreteModel(name="mambot_mpc")
+    S = len(trip.regions)
+    m.K = pyo.RangeSet(0, N)
+    m.U = pyo.RangeSet(0, N - 1)
+    m.KS = pyo.RangeSet(1, N - 1)  # steps with a region choice
+    m.KE = pyo.RangeSet(1, N)  # states in the cost
+    m.AX = pyo.Set(initialize=[0, 1])
+    m.S = pyo.RangeSet(0, S - 1)
+    mutable = {"mutable": True, "initialize": 0.0}
+    m.p_lo = pyo.Param(m.K, m.AX, **mutable)
+    m.p_hi = pyo.Param(m.K, m.AX, **mutable)
+    m.v_lo = pyo.Param(m.K, m.AX, **mutable)
+    m.v_hi = pyo.Param(m.K, m.AX, **mutable)
+    m.p_ref = pyo.Param(m.K, m.AX, **mutable)
+    m.v_ref = pyo.Param(m.K, m.AX, **mutable)
+    m.z_ub = pyo.Param(m.KS, m.S, mutable=True, initialize=1.0)
+
+    m.p = pyo.Var(m.K, m.AX, bounds=lambda m, k, a: (m.p_lo[k, a], m.p_hi[k, a]))
+    m.v = pyo.Var(m.K, m.AX, bounds=lambda m, k, a: (m.v_lo[k, a], m.v_hi[k, a]))
+    m.u = pyo.Var(m.U, m.AX, bounds=(-a_max, a_max))
+    m.z = pyo.Var(m.KS, m.S, domain=pyo.Binary, bounds=lambda m, k, j: (0, m.z_ub[k, j]))
+    m.ep = pyo.Var(m.KE, m.AX, domain=pyo.NonNegativeReals)
+    m.ev = pyo.Var(m.KE, m.AX, domain=pyo.NonNegativeReals)
+    m.eu = pyo.Var(m.U, m.AX, domain=pyo.NonNegativeReals)
+
+    m.move = pyo.Constraint(
+        m.U, m.AX, rule=lambda m, k, a: m.p[k + 1, a] == m.p[k, a] + dt * m.v[k, a]
+    )
+    m.accelerate = pyo.Constraint(
+        m.U, m.AX, rule=lambda m, k, a: m.v[k + 1, a] == m.v[k, a] + dt * m.u[k, a]
+    )
+    m.one_region = pyo.Constraint(m.KS, rule=lambda m, k: sum(m.z[k, j] for j in m.S) == 1)
+
+    # Big-M rows: a . p + M z <= b + M (z = 1: a . p <= b; z = 0: implied by the trip box).
+    faces = list(enumerate(trip.faces))
+    m.F = pyo.Set(initialize=[n for n, _ in faces])
+
+    def face_rule(m, k, n, end):
+        f = trip.faces[n]
+        p = (m.p[k + end, 0], m.p[k + end, 1])
+        return f.a[0] * p[0] + f.a[1] * p[1] + f.big_m * m.z[k, f.region] <= f.b + f.big_m
+
+    m.inside = pyo.Constraint(m.KS, m.F, [0, 1], rule=face_rule)
+    cut_faces = [n for n, f in faces if f.slower_side]
+    m.FC = pyo.Set(initialize=cut_faces)
+
+    def midpoint_rule(m, k, n):
+        f = trip.faces[n]
+        # The step's midpoint MIDPOINT_MARGIN inside the face: M over the box for p + q.
+        big = 2.0 * (f.big_m + MIDPOINT_MARGIN)
+        s = sum(f.a[a] * (m.p[k, a] + m.p[k + 1, a]) for a in (0, 1))
+        return s + big * m.z[k, f.region] <= 2.0 * (f.b - MIDPOINT_MARGIN) + big
+
+    m.midpoint = pyo.Constraint(m.KS, m.FC, rule=midpoint_rule)
+
+    # Region speed limits: |v[k]| <= v_j + (v_robot - v_j)(1 - z), only where v_j < v_robot.
+    slow = [(j, a) for j in range(S) for a in (0, 1) if trip.v_max[j, a] < v_robot - 1e-12]
+    m.SV = pyo.Set(initialize=slow, dimen=2)
+
+    def speed_rule(m, k, j, a, sign):
+        gap = v_robot - float(trip.v_max[j, a])
+        return sign * m.v[k, a] + gap * m.z[k, j] <= v_robot
+
+    m.zone_speed = pyo.Constraint(m.KS, m.SV, [1, -1], rule=speed_rule)
+
+    # 1-norm tracking epigraph; the reference sits in the rows' right-hand sides.
+    m.track_p_up = pyo.Constraint(
+        m.KE, m.AX, rule=lambda m, k, a: m.p[k, a] - m.ep[k, a] <= m.p_ref[k, a]
+    )
+    m.track_p_dn = pyo.Constraint(
+        m.KE, m.AX, rule=lambda m, k, a: -m.p[k, a] - m.ep[k, a] <= -m.p_ref[k, a]
+    )
+    m.track_v_up = pyo.Constraint(
+        m.KE, m.AX, rule=lambda m, k, a: m.v[k, a] - m.ev[k, a] <= m.v_ref[k, a]
+    )
+    m.track_v_dn = pyo.Constraint(
+        m.KE, m.AX, rule=lambda m, k, a: -m.v[k, a] - m.ev[k, a] <= -m.v_ref[k, a]
+    )
+    m.effort_up = pyo.Constraint(m.U, m.AX, rule=lambda m, k, a: m.u[k, a] <= m.eu[k, a])
+    m.effort_dn = pyo.Constraint(m.U, m.AX, rule=lambda m, k, a: -m.u[k, a] <= m.eu[k, a])
+    qp, qv, r = weights
+    m.cost = pyo.Objective(
+        expr=qp * pyo.quicksum(m.ep[k, a] for k in m.KE for a in m.AX)
+        + qv * pyo.quicksum(m.ev[k, a] for k in m.KE for a in m.AX)
+        + r * pyo.quicksum(m.eu[k, a] for k in m.U for a in m.AX),
+        sense=pyo.minimize,
+    )
+    return m
