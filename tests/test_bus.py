@@ -43,6 +43,8 @@ from fleet.plugins import (
     Neighbour,
     Observation,
     RobotSpec,
+    SolveReport,
+    SolverOutcome,
 )
 from fleet.robot import brake_input
 
@@ -161,9 +163,16 @@ OBS_FULL = Observation(
     job="job-3",
     speed_cap=0.3,
     neighbours=(Neighbour("r2", 4.0, -2.0, 0.1, 0.0), Neighbour("r3", 1.0, 1.0, 0.0, -0.2)),
+    speed_caps=((1.75, 21.0, 0.3), (21.0, 51.0, 0.5)),
 )
 OBS_IDLE = Observation("r2", 7, 1.75, 0.0, 0.0, 0.0, 0.0)  # goal None, no job, no neighbours
-CMD_PLAN = Command(0.5, -0.25, ControlStatus.FALLBACK, ((2.0, 3.5, -2.0), (2.25, 3.6, -1.9)))
+CMD_PLAN = Command(
+    0.5,
+    -0.25,
+    ControlStatus.FALLBACK,
+    ((2.0, 3.5, -2.0), (2.25, 3.6, -1.9)),
+    SolveReport(SolverOutcome.NO_SOLUTION, 0.25, 0.2625),
+)
 
 BODIES = {
     MessageKind.HELLO: {"robots": ["r1", "r2"]},
@@ -192,6 +201,13 @@ def test_observation_round_trips_with_neighbours_plan_and_none_goal():
         assert observation_from_wire(json.loads(json.dumps(wire))) == obs
     assert observation_to_wire(OBS_IDLE)["goal"] is None
     assert observation_to_wire(OBS_FULL)["neighbours"][0] == ["r2", 4.0, -2.0, 0.1, 0.0]
+
+
+@pytest.mark.parametrize("outcome", list(SolverOutcome))
+def test_solve_reports_round_trip_with_every_outcome(outcome):
+    cmd = Command(0.1, 0.2, ControlStatus.OK, (), SolveReport(outcome, 0.004, 0.005))
+    assert command_from_wire(json.loads(json.dumps(command_to_wire(cmd)))) == cmd
+    assert command_to_wire(Command(0.0, 0.0))["solve"] is None
 
 
 @pytest.mark.parametrize("status", list(ControlStatus))
@@ -307,6 +323,17 @@ MALFORMED = [
     (raw(act_with(plan=[[0.0, 1.0]])), "plan[0] = [0.0, 1.0]: must be a [t, x, y] triple"),
     (raw(act_with(plan=[[0.0, 1.0, 12345.5]])).replace(b"12345.5", b"-1e400"), "plan[0] = -inf"),
     (raw(act_with(plan={"t": 1})), "plan = {'t': 1}: must be an array"),
+    (raw(observe_with(speed_caps=None)), "speed_caps = None: must be an array"),
+    (raw(observe_with(speed_caps=[[0.0, 1.0]])), "speed_caps[0] = [0.0, 1.0]: must be"),
+    (raw(observe_with(speed_caps=[[2.0, 1.0, 0.3]])), "speed_caps[0] = [2.0, 1.0, 0.3]"),
+    (
+        raw(observe_with(speed_caps=[[0.0, 2.0, 0.3], [1.0, 3.0, 0.5]])),
+        "speed_caps[1] = [1.0, 3.0, 0.5]: pieces must be sorted, non-overlapping",
+    ),
+    (raw(act_with(solve=["great", 0.1, 0.2])), "solve[0] = 'great': must be one of 'optimal'"),
+    (raw(act_with(solve=["optimal", -0.1, 0.2])), "solve = ['optimal', -0.1, 0.2]: times"),
+    (raw(act_with(solve=["optimal", 0.1])), "solve = ['optimal', 0.1]: must be null or"),
+    (raw({k: v for k, v in act_with().items()} | {"version": 1}), "unsupported schema version"),
 ]
 
 

@@ -285,3 +285,76 @@ def test_bad_plugin_options_name_the_scenario_file(scenario_file):
     message = str(err.value)
     assert message.startswith(f"{scenario_file}: [controller] name = 'follower'")
     assert "gain = 5" in message
+
+
+def print_scenario(tmp_path: Path, controller: str) -> Path:
+    """One robot from the depot to 'east' (25 m away), printing an infill task capped at 0.2
+    m/s between 8 s and 20 s after the job starts."""
+    (tmp_path / "hall.toml").write_text(MAP)
+    path = tmp_path / f"print_{controller}.toml"
+    path.write_text(
+        '[scenario]\nmap = "hall.toml"\nduration_s = 90\n'
+        "[robots]\ncount = 1\nperiod_s = 0.5\nreturn_home = false\n"
+        f'[controller]\nname = "{controller}"\n'
+        + ("[controller.options]\nhorizon = 12\n" if controller == "mpc" else "")
+        + "[print]\ncaps = { infill = 0.2 }\n"
+        '[jobs]\nmode = "scripted"\n[[jobs.scripted]]\nat_s = 0\nstation = "east"\n'
+        'print = [{ kind = "support", start_s = 0, end_s = 8 },'
+        ' { kind = "infill", start_s = 8, end_s = 20 }]\n'
+    )
+    return path
+
+
+def test_a_job_released_at_t_is_observed_at_t_with_its_print_caps(tmp_path):
+    world = World(load_scenario(print_scenario(tmp_path, "follower")))
+    seen = []
+    host = world.host
+    original = host.controllers["r01"].compute
+
+    def spy(obs):
+        seen.append(obs)
+        return original(obs)
+
+    host.controllers["r01"].compute = spy
+    world.run()
+    first = seen[0]
+    assert first.t == 0.0 and first.goal is not None  # not one period late
+    # Only the capped task travels, cropped to the look-ahead window; speed_cap is this step's.
+    assert first.speed_caps == ((8.0, 20.0, 0.2),) and first.speed_cap is None
+    during = next(o for o in seen if o.t == 10.0)
+    assert during.speed_caps == ((10.0, 20.0, 0.2),) and during.speed_cap == 0.2
+    after = next(o for o in seen if o.t == 20.0)
+    assert after.speed_caps == () and after.speed_cap is None
+
+
+def test_print_caps_are_judged_and_written(tmp_path):
+    # The follower only reacts to the cap in force, so it brakes into the capped task too fast:
+    # the checker must catch that, from the trajectory alone.
+    world = World(load_scenario(print_scenario(tmp_path, "follower")))
+    result = world.run()
+    assert result.summary["violations"]["print_speed"] > 0
+    world.recorder.write(tmp_path / "run", result.summary, world.floor, [], world.cap_rows())
+    rows = (tmp_path / "run" / "caps.csv").read_text().splitlines()
+    assert rows == [
+        "robot,job,kind,start_s,end_s,cap",
+        "r01,j00001,infill,8.000000,20.000000,0.2",
+    ]
+
+
+def test_the_mpc_honours_print_caps_and_reports_its_solves(tmp_path):
+    world = World(load_scenario(print_scenario(tmp_path, "mpc")))
+    s = world.run().summary
+    assert all(n == 0 for n in s["violations"].values()), s["violations"]
+    arrival = s["arrivals"]["r01"]
+    assert arrival is not None and arrival > 20.0
+    solver = s["solver"]
+    assert solver["steps"] == len(world.solves) > 0 and solver["fallbacks"] == 0
+    assert solver["termination"] == {"optimal": solver["steps"]}
+    assert 0 < solver["median_ms"] <= solver["p95_ms"] <= solver["max_ms"]
+    assert solver["overhead_ratio"] >= 1.0
+
+
+def test_runs_without_solvers_or_scripts_report_accordingly(scenario_file):
+    s = World(replace(load_scenario(scenario_file), duration_s=20.0)).run().summary
+    assert s["solver"]["steps"] == 0 and s["solver"]["median_ms"] is None
+    assert "arrivals" not in s  # Poisson jobs: not a point-to-point run

@@ -62,6 +62,36 @@ def test_full_scenario(write):
         ("[[jobs.scripted]]\nstation = 'x'\n", "jobs.scripted[0].at_s", "None", "is required"),
         ("[bus]\naddress = 'udp://x'\n", "bus.address", "'udp://x'", "inproc://"),
         ("[controller]\nname = 'x'\nopts = {}\n", "controller.opts", "{}", "unknown key"),
+        ("[print]\ncaps = { glaze = 0.2 }\n", "print.caps.glaze", "0.2", "unknown task kind"),
+        ("[print]\ncaps = { infill = 0 }\n", "print.caps.infill", "0", "positive number"),
+        (
+            "[[jobs.scripted]]\nat_s = 0\nstation = 'x'\n"
+            "print = [{ kind = 'glaze', start_s = 0, end_s = 1 }]\n",
+            "jobs.scripted[0].print[0].kind",
+            "'glaze'",
+            "unknown task kind",
+        ),
+        (
+            "[[jobs.scripted]]\nat_s = 0\nstation = 'x'\n"
+            "print = [{ kind = 'infill', start_s = 5, end_s = 5 }]\n",
+            "jobs.scripted[0].print[0].end_s",
+            "5.0",
+            "must be after start_s",
+        ),
+        (
+            "[[jobs.scripted]]\nat_s = 0\nstation = 'x'\nprint = ["
+            "{ kind = 'infill', start_s = 0, end_s = 10 },"
+            "{ kind = 'contour', start_s = 9, end_s = 12 }]\n",
+            "jobs.scripted[0].print[1].start_s",
+            "9.0",
+            "in order and not overlap",
+        ),
+        (
+            "[[jobs.scripted]]\nat_s = 0\nstation = 'x'\nprint = [{ kind = 'infill' }]\n",
+            "jobs.scripted[0].print[0].start_s",
+            "None",
+            "is required",
+        ),
     ],
 )
 def test_bad_values_name_file_field_and_value(write, text, field, value, rule):
@@ -116,3 +146,19 @@ def test_command_line_overrides_are_validated(write):
 def test_shipped_scenarios_load():
     for path in sorted((REPO_ROOT / "scenarios").glob("*.toml")):
         assert load_scenario(path).map.is_file()
+
+
+def test_print_caps_and_tasks_make_a_schedule(write):
+    sc = load_scenario(
+        write(
+            "[print]\ncaps = { contour = 0.3, infill = 0.5 }\n"
+            "[jobs]\nmode = 'scripted'\n[[jobs.scripted]]\nat_s = 0\nstation = 'x'\nprint = ["
+            "{ kind = 'infill', start_s = 0, end_s = 10 },"
+            "{ kind = 'support', start_s = 10, end_s = 20 },"
+            "{ kind = 'contour', start_s = 20, end_s = 30 }]\n"
+        )
+    )
+    schedule = sc.print_schedule(sc.jobs.scripted[0])
+    assert schedule is not None and schedule.duration_s == 30.0
+    # Support has no cap in this scenario: only the capped tasks become pieces.
+    assert schedule.caps_from(100.0).pieces == ((100.0, 110.0, 0.5), (120.0, 130.0, 0.3))

@@ -157,6 +157,8 @@ class MPCController(Controller):
         self._failed: tuple[Any, ...] | None = None
         #: Trips built so far (a new goal or a fallback starts one).
         self.trips = 0
+        #: Binaries switched on (corridor size) in each solve so far, for benchmarks.
+        self.binaries: list[int] = []
 
     # -- the control law ------------------------------------------------------------------------
     def compute(self, obs: Observation) -> Command:
@@ -281,6 +283,7 @@ class MPCController(Controller):
             )
             z_ub[k - 1, outside] = 0.0
         data = StepData(p_lo, p_hi, v_lo, v_hi, z_ub, p_ref, v_ref)
+        self.binaries.append(int(z_ub.sum()))
         warm = None
         if self.warm_start and on_plan:
             assert self._last is not None
