@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from fleet.errors import NoPathError
+from fleet.paths import Reference
 from fleet.plugins import (
     CAP_LOOKAHEAD_S,
     Command,
@@ -24,6 +25,7 @@ from fleet.plugins import (
     ControlStatus,
     Observation,
     SolveReport,
+    SolverOutcome,
 )
 from fleet.printing import CapSchedule
 from fleet.robot import brake_input
@@ -135,9 +137,19 @@ class MPCController(Controller):
         )
 
     def reset(self, context: ControllerContext) -> None:
-        """Keep the context; check the horizon fits the engine's cap look-ahead."""
+        """Keep the context; check the horizon against the robot and the cap look-ahead."""
         super().reset(context)
-        span = self.horizon * context.spec.period
+        spec = context.spec
+        span = self.horizon * spec.period
+        stop = spec.v_max / spec.a_max
+        if span < stop - 1e-9:
+            # Every plan ends at rest: a horizon shorter than braking from full speed never
+            # lets the robot reach it, and a much shorter one never lets it start.
+            raise ValueError(
+                f"MPCController horizon {self.horizon} x period {spec.period:g} s = {span:g} s "
+                f"is shorter than braking from full speed ({spec.v_max:g} / {spec.a_max:g} = "
+                f"{stop:g} s); use horizon >= {math.ceil(stop / spec.period - 1e-9)}"
+            )
         if span > CAP_LOOKAHEAD_S:
             raise ValueError(
                 f"MPCController horizon {self.horizon} x period {context.spec.period:g} s = "
@@ -174,6 +186,13 @@ class MPCController(Controller):
         assert self._trip is not None and self._model is not None
         data, warm = self._step_data(obs)
         solution = self._model.solve(data, warm)
+        if solution.outcome is SolverOutcome.INFEASIBLE:
+            # The corridor assumed the plan keeps pace with the reference; open it back to the
+            # robot's own progress and try once more before falling back.
+            first = solution.solver_s
+            data, warm = self._step_data(obs, wide=True)
+            solution = self._model.solve(data, warm)
+            solution.solver_s += first
         step_s = time.perf_counter() - started
         report = SolveReport(solution.outcome, solution.solver_s, step_s)
         if solution.outcome.usable:
@@ -216,8 +235,14 @@ class MPCController(Controller):
         self.trips += 1
         return True
 
-    def _step_data(self, obs: Observation) -> tuple[StepData, np.ndarray | None]:
-        """Bounds, corridor and reference window for this tick (and a warm start, if any)."""
+    def _step_data(
+        self, obs: Observation, wide: bool = False
+    ) -> tuple[StepData, np.ndarray | None]:
+        """Bounds, corridor and reference window for this tick (and a warm start, if any).
+
+        `wide` opens every step's corridor back to the robot's own progress, for when the plan
+        cannot keep pace with the reference window (the retry after an infeasible solve).
+        """
         spec = self.context.spec
         trip, model = self._trip, self._model
         assert trip is not None and model is not None
@@ -247,15 +272,17 @@ class MPCController(Controller):
         self._progress = int(trip.progress(p0[None, :], self._progress, PROGRESS_WINDOW)[0])
         timed = ref.index(obs.t)
         base = min(max(timed, self._progress), self._progress + 1)
-        idx = np.minimum(base + np.arange(N + 1), last_index)
-        p_ref = ref.positions[idx]
-        v_ref = ref.velocities[idx]
+        p_ref, v_ref, at = _reference_window(ref, base, np.minimum(spec.v_max, caps), dt)
+        # The chord each step's reference starts on, and the last chord it reaches: step k
+        # runs along the reference from at[k] to at[k+1].
+        chord = np.minimum(np.floor(at).astype(int), last_index)
+        chord_end = np.maximum(np.ceil(at[1:]).astype(int) - 1, chord[:-1])
 
         # Corridor: chords around both where the reference is and where the last plan expected
         # the robot to be, plus the region the last plan used (so the shifted plan stays open).
         # (The last plan's regions are positions in its own trip's S: only reuse them there.)
         on_plan = self._on_plan(obs) and self._last_model is model
-        expected = base + np.arange(N + 1)
+        expected = chord
         if on_plan:
             assert self._last is not None and self._last.p is not None
             shifted = np.vstack([self._last.p[1:], self._last.p[-1:]])
@@ -263,8 +290,10 @@ class MPCController(Controller):
         z_ub = np.zeros((N - 1, len(trip.regions)))
         w = self.corridor
         for k in range(1, N):
-            lo = min(expected[k], base + k) - w
-            hi = max(expected[min(k + 1, N)], base + k) + w
+            lo = min(expected[k], chord[k]) - w
+            if wide:
+                lo = min(lo, self._progress - w)
+            hi = max(expected[k + 1], chord_end[k]) + w
             allowed = set(trip.corridor(lo, hi))
             if on_plan:
                 assert self._last is not None and self._last.regions is not None
@@ -347,3 +376,34 @@ def _non_negative(x: object) -> bool:
         and math.isfinite(float(x))
         and float(x) >= 0
     )
+
+
+def _reference_window(
+    ref: Reference, base: int, speed: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reference for horizon steps 0..N, starting at sample `base`, slowed to `speed`.
+
+    Where the reference is faster (per axis) than step k's allowed speed (a print cap), it is
+    retimed: it advances only the fraction ``speed / |v_ref|`` of a sample per step, along the
+    same chords, with its velocity scaled alike. Without caps this is samples ``base + k``.
+    Returns positions and velocities ``(N+1, 2)`` and the fractional sample index of each step.
+    """
+    last = ref.steps
+    pos, vel = ref.positions, ref.velocities
+    n = len(speed)
+    p_ref = np.empty((n, 2))
+    v_ref = np.empty((n, 2))
+    at = np.empty(n)
+    s = float(base)
+    for k in range(n):
+        s = min(s, float(last))
+        i = int(s)
+        frac = s - i
+        fastest = max(abs(vel[i, 0]), abs(vel[i, 1]))
+        scale = 1.0 if fastest <= speed[k] or fastest < 1e-12 else speed[k] / fastest
+        # Along chord i: p[i] + frac * dt * v[i] (the chord is the step p[i] -> p[i+1]).
+        p_ref[k] = pos[i] + frac * dt * vel[i]
+        v_ref[k] = vel[i] * scale
+        at[k] = s
+        s += scale
+    return p_ref, v_ref, at
