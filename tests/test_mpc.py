@@ -683,3 +683,37 @@ def test_paper_case3_through_the_engine_arrives_safely_and_the_caps_cost_time() 
         runs[name] = summary["arrivals"]["r01"]
     assert runs["paper_case3_s1"] < 150.0  # the paper's MPC: 160 s
     assert runs["paper_case3_s1"] < runs["paper_case3_s2"] < 250.0  # the paper's: 223 s
+
+
+# --- the quadratic cost option --------------------------------------------------------------------
+
+
+def test_the_quadratic_cost_drives_safely_and_more_smoothly_than_the_1_norm() -> None:
+    hall = l_hall(zone=True)
+    start, goal = (2.0, 5.0), (18.0, 6.0)
+    runs = {}
+    for cost in ("l1", "quadratic"):
+        controller = MPCController(horizon=10, cost=cost)
+        loop = Loop.start(controller, hall, start, SPEC_1S)
+        # The engine's arrival test (at rest = below 1e-3 m/s): the quadratic cost settles
+        # exponentially, never to exactly zero.
+        for _ in range(120):
+            if math.dist(loop.p, goal) <= ARRIVAL_M and np.max(np.abs(loop.v)) <= 1e-3:
+                break
+            loop.step(goal)
+        else:
+            pytest.fail(f"{cost}: at {loop.p} moving {loop.v}")
+        assert loop.violations() == []
+        assert controller.qp_failures == 0
+        inputs = np.array([(c.ax, c.ay) for c in loop.commands])
+        runs[cost] = (loop, float(np.sum(inputs**2)))
+    # The quadratic cost penalises large inputs more: less input energy over the trip.
+    assert runs["quadratic"][1] < runs["l1"][1]
+    # Its reports count both solves and keep the MILP's outcome.
+    reports = [c.solve for c in runs["quadratic"][0].commands if c.solve is not None]
+    assert reports and all(r.outcome is SolverOutcome.OPTIMAL for r in reports)
+
+
+def test_an_unknown_cost_is_refused() -> None:
+    with pytest.raises(ValueError, match="cost = 'l2': must be one of 'l1', 'quadratic'"):
+        MPCController(cost="l2")

@@ -13,6 +13,7 @@ import numbers
 import time
 from typing import Any
 
+import highspy
 import numpy as np
 
 from fleet.errors import NoPathError
@@ -30,6 +31,7 @@ from fleet.plugins import (
 from fleet.printing import CapSchedule
 from fleet.robot import brake_input
 from fleet_plugins.mpc.model import Interface, Solution, StepData, TripModel
+from fleet_plugins.mpc.refine import refine_quadratic
 from fleet_plugins.mpc.trip import Trip, reach_boxes
 
 __all__ = ["MPCController"]
@@ -40,6 +42,8 @@ REST_SPEED = 1e-9
 PLAN_MATCH = 1e-6
 #: How far ahead (samples) the progress search along the reference looks.
 PROGRESS_WINDOW = 8
+#: The cost options: the 1-norm MILP, or that MILP's regions refined by the paper's quadratic cost.
+COSTS = ("l1", "quadratic")
 
 
 class MPCController(Controller):
@@ -50,6 +54,8 @@ class MPCController(Controller):
     `horizon` with the robot's control period as step. HiGHS cannot solve the paper's
     quadratic cost with binaries (MIQP), so the cost is the 1-norm of the same terms (a MILP,
     measured as the fastest and first-arriving choice; docs/mpc.md compares the candidates).
+    ``cost = "quadratic"`` then solves the paper's quadratic cost exactly for the regions that
+    MILP chose (a convex QP, `refine.refine_quadratic`) and applies its input when it is optimal.
 
     The reference is the path layer's time-parameterised trajectory to the goal (tracking only
     the goal stalls in front of obstacles). While the robot keeps pace, step k tracks reference
@@ -76,7 +82,10 @@ class MPCController(Controller):
     time_limit_s:
         Wall-clock limit per solve (s); a solve stopped with an incumbent uses it.
     warm_start:
-        Offer HiGHS the shifted previous plan as a starting solution.
+        Offer HiGHS the shifted previous plan as a starting solution (``interface = "direct"``
+        only: Pyomo's persistent HiGHS interface has no warm start).
+    cost:
+        ``"l1"`` (default) or ``"quadratic"`` (the MILP, then the QP with its regions fixed).
     interface:
         ``"direct"`` (default): per-step bounds written into the persistent HiGHS object by
         index; ``"pyomo"``: mutable Params through Pyomo's persistent update (slower, same model).
@@ -94,6 +103,7 @@ class MPCController(Controller):
         time_limit_s: float = 1.0,
         warm_start: bool = True,
         interface: str = "direct",
+        cost: str = "l1",
     ) -> None:
         super().__init__()
         if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 2:
@@ -122,6 +132,10 @@ class MPCController(Controller):
             raise ValueError(
                 f"MPCController option interface = {interface!r}: must be one of {allowed}"
             ) from None
+        if cost not in COSTS:
+            allowed = ", ".join(repr(c) for c in COSTS)
+            raise ValueError(f"MPCController option cost = {cost!r}: must be one of {allowed}")
+        self.cost = cost
         self.horizon = horizon
         self.weights = (float(q_position), float(q_velocity), float(r_input))
         self.corridor = corridor
@@ -133,7 +147,8 @@ class MPCController(Controller):
         return (
             f"MPCController(horizon={self.horizon}, weights={self.weights}, "
             f"corridor={self.corridor}, time_limit_s={self.time_limit_s}, "
-            f"warm_start={self.warm_start}, interface={self.interface.value!r})"
+            f"warm_start={self.warm_start}, interface={self.interface.value!r}, "
+            f"cost={self.cost!r})"
         )
 
     def reset(self, context: ControllerContext) -> None:
@@ -171,6 +186,9 @@ class MPCController(Controller):
         self.trips = 0
         #: Binaries switched on (corridor size) in each solve so far, for benchmarks.
         self.binaries: list[int] = []
+        #: Quadratic refinements that were not optimal (their MILP input was applied instead).
+        self.qp_failures = 0
+        self._qp_highs: highspy.Highs | None = None
 
     # -- the control law ------------------------------------------------------------------------
     def compute(self, obs: Observation) -> Command:
@@ -193,6 +211,8 @@ class MPCController(Controller):
             data, warm = self._step_data(obs, wide=True)
             solution = self._model.solve(data, warm)
             solution.solver_s += first
+        if self.cost == "quadratic" and solution.outcome.usable:
+            solution = self._refine(solution, data)
         step_s = time.perf_counter() - started
         report = SolveReport(solution.outcome, solution.solver_s, step_s)
         if solution.outcome.usable:
@@ -206,6 +226,40 @@ class MPCController(Controller):
             u = solution.u[0]
             return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
         return self._fallback(obs, report)
+
+    def _refine(self, milp: Solution, data: StepData) -> Solution:
+        """The paper's quadratic cost for the MILP's regions; the MILP's plan if that fails."""
+        assert milp.regions is not None
+        spec = self.context.spec
+        if self._qp_highs is None:
+            self._qp_highs = highspy.Highs()  # its own object: each refinement replaces its model
+        assert self._trip is not None
+        qp = refine_quadratic(
+            self._trip,
+            data,
+            milp.regions,
+            N=self.horizon,
+            dt=spec.period,
+            a_max=spec.a_max,
+            v_robot=spec.v_max,
+            weights=self.weights,
+            time_limit_s=self.time_limit_s,
+            highs=self._qp_highs,
+        )
+        if qp.outcome is not SolverOutcome.OPTIMAL:
+            self.qp_failures += 1
+            milp.solver_s += qp.solver_s
+            return milp
+        # The report keeps the MILP's outcome (the command comes from a usable plan either way)
+        # and counts both solves' time.
+        return Solution(
+            milp.outcome,
+            milp.solver_s + qp.solver_s,
+            p=qp.p,
+            v=qp.v,
+            u=qp.u,
+            regions=milp.regions,
+        )
 
     def _new_trip(self, obs: Observation, goal: tuple[float, float]) -> bool:
         """Plan a reference from here to `goal` and build its model; False if there is no path."""
