@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from fleet.engine import World
-from fleet.errors import ScenarioError
+from fleet.errors import PluginError, ScenarioError
 from fleet.scenario import JobsConfig, PluginChoice, ScriptedJob, load_scenario
 
 MAP = """
@@ -358,3 +358,34 @@ def test_runs_without_solvers_or_scripts_report_accordingly(scenario_file):
     s = World(replace(load_scenario(scenario_file), duration_s=20.0)).run().summary
     assert s["solver"]["steps"] == 0 and s["solver"]["median_ms"] is None
     assert "arrivals" not in s  # Poisson jobs: not a point-to-point run
+
+
+def test_a_print_given_to_a_moving_robot_starts_once_it_could_have_braked(tmp_path):
+    # Job 2 reaches the robot while it drives back home at speed: its capped task must not
+    # start before braking could meet the cap, so the MPC meets it; the open job's robot has
+    # no arrival yet.
+    path = print_scenario(tmp_path, "mpc")
+    text = path.read_text().replace("return_home = false", "return_home = true")
+    text = text.replace("duration_s = 90", "duration_s = 70")
+    text += (
+        '[[jobs.scripted]]\nat_s = 45\nstation = "north"\n'
+        'print = [{ kind = "infill", start_s = 0, end_s = 30 }]\n'
+    )
+    path.write_text(text)
+    world = World(load_scenario(path))
+    s = world.run().summary
+    second = world.jobs[1]
+    robot = world.robots["r01"]
+    assert second.assigned_s == 45.0 and second.print_start_s is not None
+    assert second.print_start_s > 45.0  # it was moving when the job came
+    assert all(n == 0 for n in s["violations"].values()), s["violations"]
+    assert robot.job is second and s["arrivals"] == {"r01": None}
+
+
+def test_controller_options_that_do_not_suit_the_robot_name_the_scenario(tmp_path):
+    path = print_scenario(tmp_path, "mpc")
+    path.write_text(path.read_text().replace("horizon = 12", "horizon = 3"))
+    with pytest.raises(
+        PluginError, match=r"print_mpc.toml: \[controller\] name = 'mpc'.*horizon 3"
+    ):
+        World(load_scenario(path))

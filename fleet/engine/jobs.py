@@ -27,8 +27,10 @@ class JobRecord:
     delivered_s: float | None = None
     #: What the robot prints on the way (times relative to the print's start).
     tasks: tuple[PrintTask, ...] = ()
-    #: The print's speed caps on the simulation clock, once the job is assigned (printing
-    #: starts then) and cropped at delivery.
+    #: When printing started: the robot's first tick after assignment, or as soon as it could
+    #: have braked to rest if it was moving (None: not yet, or nothing to print).
+    print_start_s: float | None = None
+    #: The print's speed caps on the simulation clock from `print_start_s`, cropped at delivery.
     caps: CapSchedule = field(default_factory=CapSchedule)
 
     @property

@@ -152,7 +152,15 @@ class World:
         controllers = {}
         for rid, robot in self.robots.items():
             c = self._plugin("controller", load_controller)
-            c.reset(ControllerContext(rid, robot.spec, self.floor, self.planner_for(robot.spec)))
+            context = ControllerContext(rid, robot.spec, self.floor, self.planner_for(robot.spec))
+            try:
+                c.reset(context)
+            except (TypeError, ValueError) as exc:  # options that do not suit this robot
+                choice = scenario.controller
+                raise PluginError(
+                    f"{scenario.source}: [controller] name = {choice.name!r}, "
+                    f"options = {choice.options!r}: {exc}"
+                ) from None
             controllers[rid] = c
         self.exchange = Exchange(scenario.bus_address)
         self.host = AgentHost(self.exchange.address, controllers, name="local")
@@ -347,6 +355,8 @@ class World:
             goal = r.goal
             if goal is None and r.return_home:
                 goal = r.home
+            if r.job is not None and r.job.tasks and r.job.print_start_s is None:
+                self._start_print(r, t)
             caps = r.job.caps if r.job is not None else None
             cap = None
             window: tuple[tuple[float, float, float], ...] = ()
@@ -406,6 +416,18 @@ class World:
         self.recorder.event(self.env.now, "delivered", rec.job.id, robot.id, rec.job.station)
         self._request_dispatch()
 
+    def _start_print(self, robot: RobotState, t: float) -> None:
+        """Start the job's print at the robot's first tick after assignment, or, if it is moving,
+        as soon as it could have braked to rest: the velocity of the step in progress is already
+        fixed, so no controller could meet a cap that started earlier."""
+        rec = robot.job
+        assert rec is not None
+        spec = robot.spec
+        fastest = max(abs(robot.vx), abs(robot.vy))
+        steps = math.ceil(fastest / (spec.a_max * spec.period) - 1e-9) if fastest > 0 else 0
+        rec.print_start_s = t + steps * spec.period
+        rec.caps = PrintSchedule(rec.tasks, self.scenario.print_caps).caps_from(rec.print_start_s)
+
     def _request_dispatch(self) -> None:
         if not self._dispatch_scheduled:
             self._dispatch_scheduled = True
@@ -452,9 +474,6 @@ class World:
                 continue
             taken_jobs.add(a.job)
             rec.robot, rec.assigned_s = robot.id, self.env.now
-            if rec.tasks:  # printing starts when the job is assigned
-                schedule = PrintSchedule(rec.tasks, self.scenario.print_caps)
-                rec.caps = schedule.caps_from(self.env.now)
             robot.job = rec
             self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
 
@@ -538,10 +557,14 @@ class World:
             "digest": self.recorder.digest(),
         }
         if sc.jobs.mode == "scripted":
-            # Point-to-point runs: when each robot finished its last scripted trip.
+            # Point-to-point runs: when each robot finished its last trip; None while a trip
+            # it was given is still open.
             last: dict[str, float | None] = dict.fromkeys(self.robots)
             for rec in completed:
                 last[rec.robot] = max(last[rec.robot] or 0.0, rec.delivered_s)
+            for rec in self.jobs:
+                if rec.robot is not None and rec.delivered_s is None:
+                    last[rec.robot] = None
             summary["arrivals"] = last
         return RunResult(summary, safety, list(self.jobs))
 
@@ -550,12 +573,12 @@ class World:
         caps = self.scenario.print_caps
         rows = []
         for rec in self.jobs:
-            if rec.robot is None or rec.assigned_s is None:
+            if rec.robot is None or rec.print_start_s is None:
                 continue
             stop = math.inf if rec.delivered_s is None else rec.delivered_s
             for task in rec.tasks:
-                start = rec.assigned_s + task.start_s
-                end = min(rec.assigned_s + task.end_s, stop)
+                start = rec.print_start_s + task.start_s
+                end = min(rec.print_start_s + task.end_s, stop)
                 if task.kind in caps and end > start:
                     rows.append((rec.robot, rec.job.id, task.kind, start, end, caps[task.kind]))
         return rows

@@ -327,7 +327,7 @@ def _build(
 
     # Big-M rows: a . p + M z <= b + M (z = 1: a . p <= b; z = 0: implied by the trip box).
     faces = list(enumerate(trip.faces))
-    m.F = pyo.Set(initialize=[n for n, _ in faces])
+    m.F = pyo.Set(initialize=[n for n, f in faces if f.big_m > 1e-9])
 
     def face_rule(m, k, n, end):
         f = trip.faces[n]
@@ -341,7 +341,7 @@ def _build(
     def midpoint_rule(m, k, n):
         f = trip.faces[n]
         # The step's midpoint MIDPOINT_MARGIN inside the face: M over the box for p + q.
-        big = 2.0 * (f.big_m + MIDPOINT_MARGIN)
+        big = 2.0 * (max(f.big_m, 0.0) + MIDPOINT_MARGIN)
         s = sum(f.a[a] * (m.p[k, a] + m.p[k + 1, a]) for a in (0, 1))
         return s + big * m.z[k, f.region] <= 2.0 * (f.b - MIDPOINT_MARGIN) + big
 

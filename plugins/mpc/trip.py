@@ -32,7 +32,7 @@ class Face:
     region: int  # position in Trip.regions
     a: tuple[float, float]
     b: float
-    big_m: float  # max of a . p - b over the trip box (> 0, else the row is never needed)
+    big_m: float  # max of a . p - b over the trip box (<= 0: the face row is never needed)
     slower_side: bool  # a slower region lies across: the step's midpoint must stay inside
 
 
@@ -92,7 +92,9 @@ class Trip:
                 a = (float(region.A[f, 0]), float(region.A[f, 1]))
                 b = float(region.b[f])
                 big_m = _big_m(a, b, box)
-                if big_m > 1e-9:
+                # A face the trip box never crosses needs no row, unless a slower region lies
+                # across it: a step along it must still be kept off it (the midpoint cut).
+                if big_m > 1e-9 or f in slower:
                     faces.append(Face(n, a, b, big_m, f in slower))
         return cls(
             reference=reference,
