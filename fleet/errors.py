@@ -13,6 +13,8 @@ __all__ = [
     "InputError",
     "MapError",
     "ScenarioError",
+    "GcodeError",
+    "CalibrationError",
     "NoPathError",
     "MessageError",
     "PluginError",
@@ -52,6 +54,17 @@ class MapError(InputError):
 
 class ScenarioError(InputError):
     """A scenario file (or a CLI option overriding it) is malformed."""
+
+
+class GcodeError(InputError):
+    """A G-code file is not G-code, is truncated, has no extrusion or holds a bad value.
+
+    `field` names the place in the file, e.g. ``line 1234`` or ``(file)``.
+    """
+
+
+class CalibrationError(InputError):
+    """A quality calibration file (CSV) is malformed or cannot be fitted."""
 
 
 class NoPathError(FleetError):
