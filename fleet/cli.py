@@ -65,6 +65,26 @@ def _parser() -> argparse.ArgumentParser:
     floor = sub.add_parser("map", help="compile a floor map and describe its regions")
     floor.add_argument("file", type=Path)
     floor.set_defaults(handler=_cmd_map)
+
+    gcode = sub.add_parser("gcode", help="time a G-code file and split it into print tasks")
+    gcode.add_argument("file", type=Path, help="G-code from PrusaSlicer, SuperSlicer or Cura")
+    gcode.add_argument("--json", action="store_true", help="print the analysis as JSON")
+    gcode.add_argument(
+        "--min-task",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="minimum task duration in seconds; shorter segments merge (default 10)",
+    )
+    gcode.add_argument(
+        "--map",
+        action="append",
+        default=[],
+        metavar="NAME=KIND",
+        help="classify slicer feature NAME as KIND (contour, infill, support, travel, other); "
+        "repeatable, e.g. --map 'Gap fill=contour'",
+    )
+    gcode.set_defaults(handler=_cmd_gcode)
     return p
 
 
@@ -101,7 +121,14 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
         ) as bar:
             task = bar.add_task("run", total=scenario.duration_s, now=0.0)
             result = world.run(lambda now: bar.update(task, completed=now, now=now))
-    world.recorder.write(out, result.summary, world.floor, result.safety.examples, world.cap_rows())
+    world.recorder.write(
+        out,
+        result.summary,
+        world.floor,
+        result.safety.examples,
+        world.cap_rows(),
+        world.job_rows(),
+    )
     if args.figures:
         from fleet.plots import save_run_figures
 
@@ -123,7 +150,9 @@ def _kpi_table(console: Console, s: dict) -> None:
         ("wall time", f"{s['wall_time_s']:.1f} s"),
         ("robots", str(s["robots"])),
         ("jobs released / completed", f"{jobs['released']} / {jobs['completed']}"),
+        ("parts good / defective / late", f"{jobs['good']} / {jobs['defective']} / {jobs['late']}"),
         ("throughput", f"{s['throughput_per_h']:.1f} jobs/h"),
+        ("throughput of good parts", f"{s['throughput_good_per_h']:.1f} parts/h"),
         (
             "mean lead time",
             "-" if s["mean_lead_time_s"] is None else f"{s['mean_lead_time_s']:.1f} s",
@@ -196,6 +225,58 @@ def _cmd_map(args: argparse.Namespace, console: Console) -> int:
     console.print(t)
     console.print("stations: " + ", ".join(f"{s.name} ({s.kind})" for s in floor.spec.stations))
     return 0
+
+
+def _cmd_gcode(args: argparse.Namespace, console: Console) -> int:
+    import json
+
+    from fleet.errors import GcodeError
+    from fleet.gcode import analyze
+
+    classification: dict[str, str] = {}
+    for item in args.map:
+        name, sep, kind = item.partition("=")
+        if not sep or not name.strip():
+            raise GcodeError(
+                str(args.file), "--map", item, "write NAME=KIND, e.g. --map 'Gap fill=contour'"
+            )
+        classification[name.strip()] = kind.strip()
+    a = analyze(args.file, min_task_s=args.min_task, classification=classification)
+    if args.json:
+        # Plain stdout, not rich: the output is for programs.
+        sys.stdout.write(json.dumps(a.to_json(), indent=2) + "\n")
+        return 0
+    console.print(f"[bold]{escape(a.file)}[/] ({a.slicer or 'unknown slicer'}), {a.layers} layers")
+    t = Table(header_style="bold")
+    t.add_column("kind")
+    t.add_column("time", justify="right")
+    t.add_column("share", justify="right")
+    for kind, seconds in a.by_kind_s.items():
+        t.add_row(kind, _hms(seconds), f"{100 * seconds / a.total_s:.1f} %" if a.total_s else "-")
+    t.add_row("[bold]total[/]", f"[bold]{_hms(a.total_s)}[/]", "100 %")
+    console.print(t)
+    if a.slicer_estimate_s is not None and a.estimate_ratio is not None:
+        console.print(
+            f"slicer estimate {_hms(a.slicer_estimate_s)}, ours / slicer = {a.estimate_ratio:.3f}"
+        )
+    else:
+        console.print("slicer estimate: none in the file")
+    console.print(f"{len(a.tasks)} tasks of at least {a.min_task_s:g} s; first tasks:")
+    first = Table(header_style="bold")
+    for col in ("kind", "start", "end", "layer"):
+        first.add_column(col, justify="left" if col == "kind" else "right")
+    for task in a.tasks[:8]:
+        first.add_row(task.kind, _hms(task.start_s), _hms(task.end_s), str(task.layer))
+    console.print(first)
+    for w in a.warnings:
+        Console(stderr=True).print(f"[yellow]warning:[/] {escape(w)}", highlight=False)
+    return 0
+
+
+def _hms(seconds: float) -> str:
+    m, s = divmod(seconds, 60.0)
+    h, m = divmod(int(m), 60)
+    return f"{h}h {m:02d}m {s:04.1f}s" if h else f"{m}m {s:04.1f}s"
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -240,7 +240,8 @@ class Controller(ABC):
 
 @dataclass(frozen=True, slots=True)
 class Job:
-    """A unit of work: for now, "go to station X" (print content comes later)."""
+    """A unit of work: print `part` (a name from the scenario's ``[parts]``; None: nothing to
+    print) while driving to `station`, due by `due_s` (None: no due time)."""
 
     id: str
     station: str
@@ -248,6 +249,7 @@ class Job:
     y: float
     released_s: float
     due_s: float | None = None
+    part: str | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -21,6 +21,7 @@ __all__ = [
     "PluginChoice",
     "ScriptedJob",
     "JobsConfig",
+    "QualityConfig",
     "Scenario",
     "load_scenario",
     "default_scenario",
@@ -46,6 +47,12 @@ class RobotsConfig:
     radius: float = 0.4
     period_s: float = 0.25
     return_home: bool = True  # idle robots drive back to their start position
+    #: Turning in place (None: the robot is holonomic and never turns). A robot that sets off
+    #: from rest in a new direction first turns on the spot at ``v_max / turn_radius_m`` rad/s
+    #: (its wheels, ``turn_radius_m`` from its centre, keep to the speed limit), then settles
+    #: for ``turn_settle_s`` seconds.
+    turn_radius_m: float | None = None
+    turn_settle_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -58,13 +65,22 @@ class PluginChoice:
 
 @dataclass(frozen=True)
 class ScriptedJob:
-    """A job released at `at_s` to `station`; `tasks` is what the robot prints on the way
-    (times relative to the print's start, which is when the job is assigned)."""
+    """A job released at `at_s` to `station`.
+
+    What the robot prints on the way is either a `part` (a name from the scenario's
+    ``[parts]``, analysed from its G-code) or explicit `tasks` (times relative to the print's
+    start, which is when the job is assigned). `via` lists stations to pass through, in order,
+    before the destination; with `shuttle` the robot drives round them again and again while
+    the print lasts, then goes to the destination.
+    """
 
     at_s: float
     station: str
     due_s: float | None = None
     tasks: tuple[PrintTask, ...] = ()
+    part: str | None = None
+    via: tuple[str, ...] = ()
+    shuttle: bool = False
 
 
 @dataclass(frozen=True)
@@ -76,6 +92,25 @@ class JobsConfig:
     stations: tuple[str, ...] = ()  # destinations; empty -> every station that is not a depot
     due_in_s: float | None = None  # due time relative to release, for Poisson jobs
     scripted: tuple[ScriptedJob, ...] = ()
+    parts: tuple[str, ...] = ()  # Poisson jobs print one of these parts, drawn uniformly
+
+
+@dataclass(frozen=True)
+class QualityConfig:
+    """How printed parts are judged (see `fleet.quality`).
+
+    `calibration` is a QSP calibration CSV (None: the paper's Table 1); `tolerance_mm` the
+    allowed dimensional error per task kind (kinds not listed: `default_tolerance_mm`).
+    `scope` "task" judges every print task on its own motion; "print" judges the whole print
+    as one task (its mean speed, the strictest tolerance of its tasks, the worst bump): the
+    conditions under which the paper measured Tables 1 and 2.
+    """
+
+    calibration: Path | None = None
+    default_tolerance_mm: float = 0.05
+    tolerance_mm: dict[str, float] = field(default_factory=dict)
+    speed_metric: str = "mean"
+    scope: str = "task"
 
 
 @dataclass(frozen=True)
@@ -96,6 +131,16 @@ class Scenario:
     sensing_radius_m: float = 0.0  # > 0: observations list the robots this close (nearest 8)
     #: Per-axis speed cap (m/s) of each print task kind; kinds not listed are not capped.
     print_caps: dict[str, float] = field(default_factory=dict)
+    #: Parts jobs may print: name -> G-code file.
+    parts: dict[str, Path] = field(default_factory=dict)
+    #: Shortest print task (s) after merging the G-code's features (`fleet.gcode`).
+    min_task_s: float = 10.0
+    #: Overrides of the G-code feature -> task kind table.
+    classify: dict[str, str] = field(default_factory=dict)
+    quality: QualityConfig = field(default_factory=QualityConfig)
+    #: When set, every rough area of the map is also a speed zone with this limit (m/s): the
+    #: paper's "varying" strategy, slow over bumps and rough floor.
+    rough_v_max: float | None = None
 
     def print_schedule(self, job: ScriptedJob) -> PrintSchedule | None:
         """The print schedule of a scripted job under this scenario's caps (None: no print)."""
@@ -207,14 +252,56 @@ def load_scenario(path: str | Path) -> Scenario:
         station = t.take("station", str, required=True)
         due = t.take("due_s", (int, float), None)
         tasks = _print_tasks(src, f"jobs.scripted[{i}].print", t.take_list("print", dict, ()))
+        part = t.take("part", str, None)
+        if part is not None and tasks:
+            raise ScenarioError(
+                src, f"jobs.scripted[{i}].part", part, "give either part or print, not both"
+            )
+        via = tuple(t.take_list("via", str, ()))
+        shuttle = t.take("shuttle", bool, False)
+        if shuttle and not via:
+            raise ScenarioError(
+                src, f"jobs.scripted[{i}].shuttle", shuttle, "shuttle needs via stations"
+            )
         t.finish()
-        scripted.append(ScriptedJob(float(at), station, None if due is None else float(due), tasks))
+        scripted.append(
+            ScriptedJob(
+                float(at),
+                station,
+                None if due is None else float(due),
+                tasks,
+                part,
+                via,
+                shuttle,
+            )
+        )
     if mode == "scripted" and not scripted:
         raise ScenarioError(src, "jobs.scripted", [], "mode 'scripted' needs at least one job")
+    job_parts = tuple(jb.take_list("parts", str, ()))
     jb.finish()
     jobs = JobsConfig(
-        mode, float(rate), stations, None if due_in is None else float(due_in), tuple(scripted)
+        mode,
+        float(rate),
+        stations,
+        None if due_in is None else float(due_in),
+        tuple(scripted),
+        job_parts,
     )
+
+    parts: dict[str, Path] = {}
+    for part, file in root.take("parts", dict, {}).items():
+        if not isinstance(file, str):
+            raise ScenarioError(src, f"parts.{part}", file, "must be a G-code file name (string)")
+        gcode = (path.parent / file).resolve()
+        if not gcode.is_file():
+            raise ScenarioError(src, f"parts.{part}", file, f"no such G-code file ({gcode})")
+        parts[part] = gcode
+    for i, part in enumerate(job_parts):
+        if part not in parts:
+            raise ScenarioError(src, f"jobs.parts[{i}]", part, _unknown_part(parts))
+    for i, item in enumerate(scripted):
+        if item.part is not None and item.part not in parts:
+            raise ScenarioError(src, f"jobs.scripted[{i}].part", item.part, _unknown_part(parts))
 
     pr = root.table("print")
     caps = {}
@@ -227,7 +314,25 @@ def load_scenario(path: str | Path) -> Scenario:
                 f"unknown task kind (known: {', '.join(TASK_KINDS)})",
             )
         caps[kind] = _positive(src, f"print.caps.{kind}", cap)
+    min_task = _non_negative(src, "print.min_task_s", pr.take("min_task_s", (int, float), 10.0))
+    classify = {}
+    for feature, kind in pr.take("classify", dict, {}).items():
+        if kind not in TASK_KINDS:
+            raise ScenarioError(
+                src,
+                f"print.classify.{feature}",
+                kind,
+                f"unknown task kind (known: {', '.join(TASK_KINDS)})",
+            )
+        classify[feature] = kind
     pr.finish()
+
+    quality = _quality(root.table("quality"), path)
+    fl = root.table("floor")
+    rough = fl.take("rough_v_max", (int, float), None)
+    if rough is not None:
+        rough = _positive(src, "floor.rough_v_max", rough)
+    fl.finish()
 
     bus = root.table("bus")
     address = bus.take("address", str, None)
@@ -251,7 +356,51 @@ def load_scenario(path: str | Path) -> Scenario:
         arrival_tolerance_m=float(tol),
         sensing_radius_m=float(sensing),
         print_caps=caps,
+        parts=parts,
+        min_task_s=float(min_task),
+        classify=classify,
+        quality=quality,
+        rough_v_max=rough,
     )
+
+
+def _unknown_part(parts: dict[str, Path]) -> str:
+    known = ", ".join(sorted(parts)) or "none: add a [parts] table"
+    return f"no such part in [parts] (known: {known})"
+
+
+def _quality(q: _Table, path: Path) -> QualityConfig:
+    src = q.source
+    calibration = q.take("calibration", str, None)
+    cal_path = None
+    if calibration is not None:
+        cal_path = (path.parent / calibration).resolve()
+        if not cal_path.is_file():
+            raise ScenarioError(
+                src, "quality.calibration", calibration, f"no such CSV file ({cal_path})"
+            )
+    tol = q.take("tolerance_mm", (int, float, dict), 0.05)
+    default_tol, per_kind = 0.05, {}
+    if isinstance(tol, dict):
+        for kind, value in tol.items():
+            if kind not in TASK_KINDS:
+                raise ScenarioError(
+                    src,
+                    f"quality.tolerance_mm.{kind}",
+                    value,
+                    f"unknown task kind (known: {', '.join(TASK_KINDS)})",
+                )
+            per_kind[kind] = _positive(src, f"quality.tolerance_mm.{kind}", value)
+    else:
+        default_tol = _positive(src, "quality.tolerance_mm", tol)
+    metric = q.take("speed_metric", str, "mean")
+    if metric not in ("mean", "max"):
+        raise ScenarioError(src, "quality.speed_metric", metric, "must be 'mean' or 'max'")
+    scope = q.take("scope", str, "task")
+    if scope not in ("task", "print"):
+        raise ScenarioError(src, "quality.scope", scope, "must be 'task' or 'print'")
+    q.finish()
+    return QualityConfig(cal_path, default_tol, per_kind, metric, scope)
 
 
 def _print_tasks(src: str, where: str, items: list[dict]) -> tuple[PrintTask, ...]:
@@ -297,6 +446,12 @@ def _robots(rb: _Table, src: str, where: str) -> RobotsConfig:
         radius=_positive(src, f"{where}.radius", rb.take("radius", (int, float), 0.4)),
         period_s=_positive(src, f"{where}.period_s", rb.take("period_s", (int, float), 0.25)),
         return_home=rb.take("return_home", bool, True),
+        turn_radius_m=_optional_positive(
+            src, f"{where}.turn_radius_m", rb.take("turn_radius_m", (int, float), None)
+        ),
+        turn_settle_s=_non_negative(
+            src, f"{where}.turn_settle_s", rb.take("turn_settle_s", (int, float), 0.0)
+        ),
     )
     rb.finish()
     return group
@@ -371,6 +526,10 @@ def _positive(src: str, fld: str, value: Any) -> float:
     ):
         raise ScenarioError(src, fld, value, "must be a positive number")
     return float(value)
+
+
+def _optional_positive(src: str, fld: str, value: Any) -> float | None:
+    return None if value is None else _positive(src, fld, value)
 
 
 def _non_negative(src: str, fld: str, value: Any) -> float:

@@ -25,6 +25,8 @@ SUMMARY_KEYS = {
     "wall_time_s",
     "jobs",
     "throughput_per_h",
+    "throughput_good_per_h",
+    "quality",
     "mean_lead_time_s",
     "distance_m",
     "violations",
@@ -52,7 +54,7 @@ def test_run_writes_the_run_directory(scenario, tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary) >= SUMMARY_KEYS
     assert summary["seed"] == 5 and summary["robots"] == 3
-    assert set(summary["jobs"]) >= {"released", "completed"}
+    assert set(summary["jobs"]) >= {"released", "completed", "good", "defective", "late"}
     assert set(summary["violations"]) == {"obstacle", "speed_zone", "print_speed", "collision"}
     assert [p["id"] for p in summary["per_robot"]] == ["r01", "r02", "r03"]
     with open(out / "trajectories.csv") as fh:
@@ -62,6 +64,24 @@ def test_run_writes_the_run_directory(scenario, tmp_path, capsys):
     assert all(int(r["region"]) >= 0 for r in rows)
     events = (out / "events.csv").read_text().splitlines()
     assert events[0] == "t,event,job,robot,station"
+    with open(out / "jobs.csv") as fh:
+        jobs = list(csv.DictReader(fh))
+    assert len(jobs) == summary["jobs"]["released"]
+    assert list(jobs[0])[:9] == [
+        "id",
+        "part",
+        "robot",
+        "released_s",
+        "started_s",
+        "finished_s",
+        "delivered_s",
+        "predicted_error_mm",
+        "passed",
+    ]
+    # Plain deliveries: nothing printed, nothing judged, every delivered job counts as good.
+    delivered = [j for j in jobs if j["delivered_s"]]
+    assert len(delivered) == summary["jobs"]["completed"] == summary["jobs"]["good"]
+    assert all(j["part"] == "" and j["passed"] == "" for j in jobs)
 
 
 def test_bad_scenario_exits_2_with_the_message(tmp_path, capsys):

@@ -679,7 +679,9 @@ def test_paper_case3_through_the_engine_arrives_safely_and_the_caps_cost_time() 
         assert all(n == 0 for n in summary["violations"].values()), summary["violations"]
         assert summary["solver"]["fallbacks"] == 0
         assert summary["solver"]["steps"] > 0
-        assert summary["jobs"]["completed"] == 1
+        # s2's print runs to 251 s, past the paper's 250 s: its robot has arrived and is still
+        # printing at the destination, so the job is not delivered yet.
+        assert summary["jobs"]["completed"] == (1 if name.endswith("s1") else 0)
         runs[name] = summary["arrivals"]["r01"]
     assert runs["paper_case3_s1"] < 150.0  # the paper's MPC: 160 s
     assert runs["paper_case3_s1"] < runs["paper_case3_s2"] < 250.0  # the paper's: 223 s

@@ -19,6 +19,7 @@ from fleet.errors import MapError, NoPathError
 from fleet.floor import FloorSpec, Obstacle, SpeedZone, Station, compile_floor
 from fleet.floor.mapfile import grow
 from fleet.paths import PathPlanner
+from fleet.printing import PrintTask
 from fleet.scenario import JobsConfig, RobotsConfig, Scenario, ScriptedJob
 
 
@@ -107,3 +108,51 @@ def test_follower_never_leaves_free_space_or_breaks_a_limit(period, floor, robot
     # Not vacuous: the robots really drove the trip.
     assert result.summary["jobs"]["completed"] >= 1
     assert result.summary["distance_m"] >= trip.length - 1e-6
+
+
+@st.composite
+def print_tasks(draw):
+    """A random print: 1-6 back-to-back tasks of random kinds and lengths (seconds)."""
+    tasks, t = [], 0.0
+    for _ in range(draw(st.integers(1, 6))):
+        length = draw(st.floats(1.0, 25.0))
+        kind = draw(st.sampled_from(["contour", "infill", "support", "travel"]))
+        tasks.append(PrintTask(kind, t, t + length))
+        t += length
+    return tuple(tasks)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    floor=random_floor(),
+    tasks=print_tasks(),
+    caps=st.fixed_dictionaries(
+        {k: st.sampled_from([0.1, 0.3, 0.5, 0.7]) for k in ("contour", "infill", "support")}
+    ),
+    moving=st.booleans(),
+)
+def test_follower_never_breaks_a_print_cap(floor, tasks, caps, moving):
+    # The second job prints on the way back to "a". It reaches the robot at rest at "b" or,
+    # when `moving`, while the robot drives home at speed; caps that start while it drives
+    # must hold all the same.
+    a, b = floor.station("a"), floor.station("b")
+    try:
+        trip = PathPlanner(floor, 1.0, 0.5).path((a.x, a.y), (b.x, b.y))
+    except NoPathError:
+        assume(False)
+    note(f"tasks {tasks}, caps {caps}")
+    second = ScriptedJob(trip.travel_time + 3.0 if moving else 0.0, "a", tasks=tasks)
+    scenario = Scenario(
+        name="property-caps",
+        source="<property test>",
+        map=Path("<random floor>"),
+        duration_s=60.0 + 12.0 * trip.travel_time,  # a 0.1 m/s cap makes the trip 10x slower
+        robots=(RobotsConfig(count=1, start=("a",), period_s=0.25, radius=0.3),),
+        jobs=JobsConfig(mode="scripted", scripted=(ScriptedJob(0.0, "b"), second)),
+        print_caps=caps,
+    )
+    result = World(scenario, floor).run()
+    assert result.summary["violations"]["print_speed"] == 0, result.safety.examples
+    assert result.summary["violations"]["speed_zone"] == 0, result.safety.examples
+    assert result.summary["violations"]["obstacle"] == 0, result.safety.examples
+    assert result.summary["jobs"]["completed"] == 2  # not vacuous: it drove while printing

@@ -3,14 +3,20 @@
 Output contract (extend it, never break it):
 
 - ``summary.json``: scenario, map, seed, controller, dispatcher, robots, sim_time_s,
-  wall_time_s, jobs {released, completed, ...}, throughput_per_h, mean_lead_time_s, distance_m,
-  violations {obstacle, speed_zone, print_speed, collision}, solver {steps, median_ms, p95_ms,
-  max_ms, fallbacks, termination {outcome: count}, ...} (solve statistics reported by optimising
-  controllers), per_robot [{id, distance_m, jobs_completed}], digest (sha256 of the
-  trajectories: the same seed gives the same digest); for scripted (point-to-point) runs also
-  arrivals {robot: time of its last delivery, s, or null}.
+  wall_time_s, jobs {released, completed, good, defective, late, ...}, throughput_per_h,
+  throughput_good_per_h, mean_lead_time_s, distance_m, violations {obstacle, speed_zone,
+  print_speed, collision}, quality {prints, outcomes {good, defective, failed}, max_error_mm},
+  solver {steps, median_ms, p95_ms, max_ms, fallbacks, termination {outcome: count}, ...}
+  (solve statistics reported by optimising controllers), per_robot [{id, distance_m,
+  jobs_completed, turned_rad}], digest (sha256 of the trajectories: the same seed gives the
+  same digest); for scripted (point-to-point) runs also arrivals {robot: when it reached the
+  destination of its last trip, s, or null}.
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
-- ``events.csv``: t, event, job, robot, station (released, assigned, started, delivered).
+- ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
+  arrived, delivered).
+- ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
+  predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
+  printed); started/finished are the print's start and end.
 - ``caps.csv``: robot, job, kind, start_s, end_s, cap: the print-task speed caps each robot was
   under (absolute seconds; written when any job prints).
 - ``violations.csv``: the first violations in full, when there are any.
@@ -103,8 +109,10 @@ class Recorder:
         floor: Floor,
         violations: list,
         caps: list[tuple[str, str, str, float, float, float]] | None = None,
+        jobs: list[dict[str, Any]] | None = None,
     ) -> None:
-        """Write the run directory; `caps` rows are (robot, job, kind, start_s, end_s, cap)."""
+        """Write the run directory; `caps` rows are (robot, job, kind, start_s, end_s, cap),
+        `jobs` rows are `World.job_rows` dicts."""
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(
             json.dumps(summary, indent=2) + "\n", encoding="utf-8"
@@ -115,6 +123,8 @@ class Recorder:
             w.writerow(["t", "event", "job", "robot", "station"])
             for e in self.events:
                 w.writerow([f"{e.t:.6f}", e.event, e.job, e.robot, e.station])
+        if jobs is not None:
+            _write_jobs(out_dir / "jobs.csv", jobs)
         cpath = out_dir / "caps.csv"
         if caps:
             with open(cpath, "w", newline="", encoding="utf-8") as fh:
@@ -151,3 +161,36 @@ class Recorder:
                     f"{v[i, 1]:.6f},{region[i]},{v_zone[i]:g}\n"
                     for i in range(len(t))
                 )
+
+
+#: Columns of jobs.csv, in order (the issue's list first, then extras).
+JOB_COLUMNS = (
+    "id",
+    "part",
+    "robot",
+    "released_s",
+    "started_s",
+    "finished_s",
+    "delivered_s",
+    "predicted_error_mm",
+    "passed",
+    "due_s",
+    "outcome",
+)
+
+
+def _write_jobs(path: Path, rows: list[dict[str, Any]]) -> None:
+    def cell(value: Any) -> str:
+        if value is None:
+            return ""
+        if isinstance(value, bool):
+            return "true" if value else "false"
+        if isinstance(value, float):
+            return f"{value:.6f}"
+        return str(value)
+
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(JOB_COLUMNS)
+        for row in rows:
+            w.writerow([cell(row[c]) for c in JOB_COLUMNS])

@@ -11,13 +11,14 @@ runs in the engine whenever a job is released or a robot falls idle.
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import time
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import networkx as nx
 import numpy as np
@@ -26,8 +27,8 @@ import simpy
 from fleet.bus import AgentHost, Exchange
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
-from fleet.errors import FleetError, PluginError, ScenarioError
-from fleet.floor import Floor, load_floor
+from fleet.errors import FleetError, NoPathError, PluginError, ScenarioError
+from fleet.floor import Floor, SpeedZone, compile_floor, load_floor, load_spec
 from fleet.paths import PathPlanner
 from fleet.plugins import (
     CAP_LOOKAHEAD_S,
@@ -44,10 +45,13 @@ from fleet.plugins import (
     load_controller,
     load_dispatcher,
 )
-from fleet.printing import CapSchedule, PrintSchedule
+from fleet.printing import CapSchedule, PrintSchedule, PrintTask
 from fleet.robot import DoubleIntegrator, brake_input
 from fleet.safety import SafetyChecker, SafetyReport
 from fleet.scenario import Scenario
+
+if TYPE_CHECKING:
+    from fleet.quality import QualityModel
 
 __all__ = ["World", "RobotState", "RunResult"]
 
@@ -57,6 +61,8 @@ log = logging.getLogger("fleet.engine")
 REST_SPEED = 1e-3
 #: At most this many neighbours (the nearest) go into one observation.
 MAX_NEIGHBOURS = 8
+#: Course changes (rad) smaller than this need no turn in place.
+TURN_EPSILON = 1e-3
 
 
 @dataclass(slots=True)
@@ -81,6 +87,14 @@ class RobotState:
     plan: tuple[tuple[float, float, float], ...] = ()
     #: Print caps of the jobs this robot has finished (the current job's are in `job.caps`).
     past_caps: list[tuple[float, float, float]] = field(default_factory=list)
+    #: Turning in place (`RobotsConfig.turn_radius_m`): angular speed (rad/s; None: the robot
+    #: is holonomic), settle time, current heading (None until it first sets off), the end of
+    #: the turn in progress and the cumulative turning angle.
+    turn_rate: float | None = None
+    turn_settle_s: float = 0.0
+    heading: float | None = None
+    turning_until: float = -math.inf
+    turned_rad: float = 0.0
 
     def caps(self) -> CapSchedule:
         """Every print-cap piece this robot has been under so far (for the safety checker)."""
@@ -89,9 +103,14 @@ class RobotState:
 
     @property
     def goal(self) -> tuple[float, float] | None:
-        if self.job is not None:
-            return (self.job.job.x, self.job.job.y)
-        return None
+        """Where the current job sends the robot next: a via station, or the destination."""
+        rec = self.job
+        if rec is None:
+            return None
+        if rec.leg < len(rec.via):
+            _, x, y = rec.via[rec.leg]
+            return (x, y)
+        return (rec.job.x, rec.job.y)
 
 
 @dataclass
@@ -116,7 +135,9 @@ class World:
 
     def __init__(self, scenario: Scenario, floor: Floor | None = None) -> None:
         self.scenario = scenario
-        self.floor = floor if floor is not None else load_floor(scenario.map)
+        if floor is None:
+            floor = _load_floor(scenario)
+        self.floor = floor
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
@@ -133,11 +154,20 @@ class World:
         for group in scenario.robots:
             spec = RobotSpec(group.v_max, group.a_max, group.radius, group.period_s)
             model = DoubleIntegrator(group.period_s, group.a_max)
+            rate = None if group.turn_radius_m is None else group.v_max / group.turn_radius_m
             for _ in range(group.count):
                 rid = f"r{len(self.robots) + 1:0{width}d}"
                 hx, hy = homes[len(self.robots)]
                 self.robots[rid] = RobotState(
-                    rid, spec, model, (hx, hy), hx, hy, return_home=group.return_home
+                    rid,
+                    spec,
+                    model,
+                    (hx, hy),
+                    hx,
+                    hy,
+                    return_home=group.return_home,
+                    turn_rate=rate,
+                    turn_settle_s=group.turn_settle_s,
                 )
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
@@ -145,6 +175,9 @@ class World:
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
         self._check_reachable(homes)
+        #: Each part's print tasks, analysed from its G-code once per run.
+        self.part_tasks = self._analyse_parts()
+        self.quality = _quality_model(scenario)
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
         self.stats: dict[str, int] = defaultdict(int)
         self.solves: list[SolveReport] = []
@@ -184,6 +217,18 @@ class World:
                 f"{self.scenario.source}: [{kind}] name = {choice.name!r}, "
                 f"options = {choice.options!r}: {exc}"
             ) from None
+
+    def _analyse_parts(self) -> dict[str, tuple[PrintTask, ...]]:
+        sc = self.scenario
+        if not sc.parts:
+            return {}
+        from fleet.gcode import analyze  # parsing G-code is only needed with parts
+
+        out = {}
+        for name, path in sc.parts.items():
+            analysis = analyze(path, min_task_s=sc.min_task_s, classification=sc.classify or None)
+            out[name] = analysis.print_tasks()
+        return out
 
     def planner_for(self, spec: RobotSpec) -> PathPlanner:
         """The shared path planner for robots with `spec`'s speed and acceleration limits."""
@@ -286,7 +331,17 @@ class World:
             if t > self.scenario.duration_s:
                 return
             yield self.env.timeout(t - self.env.now)
-            rec = JobRecord(job, tasks=self.job_source.print_tasks.pop(job.id, ()))
+            tasks = self.job_source.print_tasks.pop(job.id, ())
+            if job.part is not None:
+                tasks = self.part_tasks[job.part]
+            item = self.job_source.scripted.pop(job.id, None)
+            via: tuple[tuple[str, float, float], ...] = ()
+            if item is not None:
+                via = tuple(
+                    (name, self.floor.station(name).x, self.floor.station(name).y)
+                    for name in item.via
+                )
+            rec = JobRecord(job, tasks=tasks, via=via, shuttle=item is not None and item.shuttle)
             self.jobs.append(rec)
             self.recorder.event(t, "released", job.id, station=job.station)
             self._request_dispatch()
@@ -301,8 +356,10 @@ class World:
                     robot.x, robot.y, robot.vx, robot.vy, robot.ax, robot.ay
                 )
             self.recorder.sample(robot.id, env.now, robot.x, robot.y, robot.vx, robot.vy)
+            if robot.turn_rate is not None:
+                self._follow_heading(robot)
             if robot.job is not None and _at_rest_near(robot, robot.goal, tol):
-                self._deliver(robot)
+                self._arrive(robot)
             command = yield self._request(robot)
             robot.ax, robot.ay = command.ax, command.ay
             robot.tick += 1
@@ -351,10 +408,16 @@ class World:
         radius = self.scenario.sensing_radius_m
         near = self._neighbours(robots, radius) if radius > 0 and len(self.robots) > 1 else {}
         out = []
+        tol = self.scenario.arrival_tolerance_m
         for r in robots:
+            rec = r.job
+            if rec is not None and rec.shuttle and rec.printing_done(t) and rec.leg < len(rec.via):
+                rec.leg = len(rec.via)  # the print is done: on to the destination
             goal = r.goal
             if goal is None and r.return_home:
                 goal = r.home
+            if r.turn_rate is not None and goal is not None and self._turning(r, goal, t, tol):
+                goal = (r.x, r.y)  # turning on the spot: hold here until the turn is done
             if r.job is not None and r.job.tasks and r.job.print_start_s is None:
                 self._start_print(r, t)
             caps = r.job.caps if r.job is not None else None
@@ -403,11 +466,88 @@ class World:
             )
         return out
 
+    # -- turning in place ---------------------------------------------------------------------
+    def _follow_heading(self, robot: RobotState) -> None:
+        """While moving, the robot faces its direction of travel; count the angle it turns."""
+        if max(abs(robot.vx), abs(robot.vy)) <= REST_SPEED:
+            return
+        course = math.atan2(robot.vy, robot.vx)
+        if robot.heading is not None:
+            self._turned(robot, abs(_wrap(course - robot.heading)))
+        robot.heading = course
+
+    def _turning(self, robot: RobotState, goal: tuple[float, float], t: float, tol: float) -> bool:
+        """Whether `robot` must turn on the spot before it sets off towards `goal` (starting
+        the turn if it is at rest and the way to the goal leaves in another direction)."""
+        if t < robot.turning_until - 1e-9:
+            return True
+        if max(abs(robot.vx), abs(robot.vy)) > REST_SPEED:
+            return False
+        if math.hypot(goal[0] - robot.x, goal[1] - robot.y) <= tol:
+            return False
+        course = self._departure_course(robot, goal)
+        if course is None:
+            return False
+        if robot.heading is None:  # the robot starts out facing its first way
+            robot.heading = course
+            return False
+        angle = abs(_wrap(course - robot.heading))
+        if angle <= TURN_EPSILON:
+            return False
+        assert robot.turn_rate is not None
+        duration = angle / robot.turn_rate + robot.turn_settle_s
+        # Whole control periods: the robot sets off at a tick.
+        period = robot.spec.period
+        robot.turning_until = t + math.ceil(duration / period - 1e-9) * period
+        self._turned(robot, angle)
+        robot.heading = course
+        self.recorder.event(t, "turn", "" if robot.job is None else robot.job.job.id, robot.id)
+        return True
+
+    def _turned(self, robot: RobotState, angle: float) -> None:
+        robot.turned_rad += angle
+        if robot.job is not None and robot.job.printing(self.env.now):
+            robot.job.turned_rad += angle
+
+    def _departure_course(self, robot: RobotState, goal: tuple[float, float]) -> float | None:
+        """The direction of the first leg of the path from the robot to `goal`."""
+        try:
+            waypoints = self.planner_for(robot.spec).path((robot.x, robot.y), goal).waypoints
+        except NoPathError:
+            return None
+        for p in waypoints[1:]:
+            dx, dy = float(p[0]) - robot.x, float(p[1]) - robot.y
+            if math.hypot(dx, dy) > 1e-6:
+                return math.atan2(dy, dx)
+        return None
+
     # -- jobs -----------------------------------------------------------------------------------
+    def _arrive(self, robot: RobotState) -> None:
+        """At rest at the current goal: pass a via station, or deliver once the print is done."""
+        rec = robot.job
+        assert rec is not None
+        t = self.env.now
+        if rec.leg < len(rec.via):
+            name = rec.via[rec.leg][0]
+            self.recorder.event(t, "passed", rec.job.id, robot.id, name)
+            rec.leg += 1
+            if rec.shuttle and rec.leg == len(rec.via) and not rec.printing_done(t):
+                rec.leg = 0  # round again while the print lasts
+            return
+        if rec.arrived_s is None:
+            rec.arrived_s = t
+            self.recorder.event(t, "arrived", rec.job.id, robot.id, rec.job.station)
+        if rec.print_start_s is None and rec.tasks:
+            return  # the print starts at the next tick
+        if not rec.printing_done(t):
+            return  # printing standing still at the destination until the part is done
+        self._deliver(robot)
+
     def _deliver(self, robot: RobotState) -> None:
         rec = robot.job
         assert rec is not None
         rec.delivered_s = self.env.now
+        self._judge(rec)
         # Printing ends with the delivery: the caps after it no longer bind the robot.
         rec.caps = rec.caps.window(-math.inf, self.env.now)
         robot.past_caps.extend(rec.caps.pieces)
@@ -427,6 +567,26 @@ class World:
         steps = math.ceil(fastest / (spec.a_max * spec.period) - 1e-9) if fastest > 0 else 0
         rec.print_start_s = t + steps * spec.period
         rec.caps = PrintSchedule(rec.tasks, self.scenario.print_caps).caps_from(rec.print_start_s)
+
+    def _judge(self, rec: JobRecord) -> None:
+        """Predict the quality of a finished print from the robot's samples while printing."""
+        end = rec.print_end_s
+        if rec.quality is not None or end is None or rec.robot is None or self.quality is None:
+            return
+        start = rec.print_start_s
+        assert start is not None
+        tr = self.recorder.trajectories[rec.robot]
+        # Samples from the last one at or before the start to the first one at or after the end.
+        lo = max(0, bisect.bisect_right(tr.t, start + 1e-9) - 1)
+        hi = bisect.bisect_left(tr.t, end - 1e-9) + 1
+        t = np.asarray(tr.t[lo:hi], dtype=float)
+        xy = np.column_stack([tr.x[lo:hi], tr.y[lo:hi]]).astype(float).reshape(-1, 2)
+        v = np.column_stack([tr.vx[lo:hi], tr.vy[lo:hi]]).astype(float).reshape(-1, 2)
+        tasks = [PrintTask(k.kind, start + k.start_s, start + k.end_s) for k in rec.tasks]
+        if self.scenario.quality.scope == "print":
+            strictest = min((k.kind for k in tasks), key=self.quality.tolerance)
+            tasks = [PrintTask(strictest, start, end)]
+        rec.quality = self.quality.predict(tasks, t, xy, v, self.floor.spec.rough_areas)
 
     def _request_dispatch(self) -> None:
         if not self._dispatch_scheduled:
@@ -513,13 +673,25 @@ class World:
         radii = {rid: r.spec.radius for rid, r in self.robots.items()}
         caps = {rid: r.caps() for rid, r in self.robots.items()}
         safety = SafetyChecker(self.floor).check(trajectories, radii, caps)
+        for rec in self.jobs:  # prints that finished but were not delivered by the end
+            if rec.print_end_s is not None and rec.print_end_s <= self.env.now + 1e-9:
+                self._judge(rec)
         completed = [rec for rec in self.jobs if rec.delivered_s is not None]
+        good = [rec for rec in completed if rec.quality is None or rec.quality.passed]
+        now = float(self.env.now)
+        late = sum(
+            1
+            for rec in self.jobs
+            if rec.late
+            or (rec.delivered_s is None and rec.job.due_s is not None and now > rec.job.due_s)
+        )
         lead = [rec.lead_time_s for rec in completed]
         per_robot = [
             {
                 "id": rid,
                 "distance_m": round(self.recorder.trajectories[rid].distance(), 6),
                 "jobs_completed": r.jobs_completed,
+                "turned_rad": round(r.turned_rad, 6),
             }
             for rid, r in self.robots.items()
         ]
@@ -541,11 +713,19 @@ class World:
                     1 for rec in self.jobs if rec.robot and rec.delivered_s is None
                 ),
                 "unassigned": sum(1 for rec in self.jobs if rec.open),
+                # Delivered parts that passed the quality prediction (jobs with nothing to
+                # print count as good), delivered parts that did not, and jobs delivered after
+                # their due time or still out when it passed.
+                "good": len(good),
+                "defective": len(completed) - len(good),
+                "late": late,
             },
             "throughput_per_h": round(len(completed) / hours, 6) if hours > 0 else 0.0,
+            "throughput_good_per_h": round(len(good) / hours, 6) if hours > 0 else 0.0,
             "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
             "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
             "violations": dict(safety.counts),
+            "quality": self._quality_summary(),
             "solver": self._solver_summary(),
             "per_robot": per_robot,
             "engine": {
@@ -557,13 +737,14 @@ class World:
             "digest": self.recorder.digest(),
         }
         if sc.jobs.mode == "scripted":
-            # Point-to-point runs: when each robot finished its last trip; None while a trip
-            # it was given is still open.
+            # Point-to-point runs: when each robot reached the destination of its last trip
+            # (a print may keep it there longer); None while a trip it was given is still open.
             last: dict[str, float | None] = dict.fromkeys(self.robots)
-            for rec in completed:
-                last[rec.robot] = max(last[rec.robot] or 0.0, rec.delivered_s)
+            arrived = [rec for rec in self.jobs if rec.arrived_s is not None]
+            for rec in arrived:
+                last[rec.robot] = max(last[rec.robot] or 0.0, rec.arrived_s)
             for rec in self.jobs:
-                if rec.robot is not None and rec.delivered_s is None:
+                if rec.robot is not None and rec.arrived_s is None:
                     last[rec.robot] = None
             summary["arrivals"] = last
         return RunResult(summary, safety, list(self.jobs))
@@ -581,6 +762,44 @@ class World:
                 end = min(rec.print_start_s + task.end_s, stop)
                 if task.kind in caps and end > start:
                     rows.append((rec.robot, rec.job.id, task.kind, start, end, caps[task.kind]))
+        return rows
+
+    def _quality_summary(self) -> dict[str, Any]:
+        """Outcomes of the prints judged so far and the largest predicted error."""
+        judged = [rec.quality for rec in self.jobs if rec.quality is not None]
+        outcomes: dict[str, int] = defaultdict(int)
+        for q in judged:
+            outcomes[q.outcome] += 1
+        return {
+            "prints": len(judged),
+            "outcomes": dict(sorted(outcomes.items())),
+            "max_error_mm": round(max(q.error_mm for q in judged), 6) if judged else None,
+        }
+
+    def job_rows(self) -> list[dict[str, Any]]:
+        """One row per job for ``jobs.csv`` (None: not happened, or not printed)."""
+        rows = []
+        for rec in self.jobs:
+            q = rec.quality
+            rows.append(
+                {
+                    "id": rec.job.id,
+                    "part": rec.job.part,
+                    "robot": rec.robot,
+                    "released_s": rec.job.released_s,
+                    "started_s": rec.print_start_s
+                    if rec.print_start_s is not None
+                    else rec.started_s,
+                    "finished_s": rec.print_end_s
+                    if rec.print_end_s is not None and rec.printing_done(self.env.now)
+                    else None,
+                    "delivered_s": rec.delivered_s,
+                    "due_s": rec.job.due_s,
+                    "predicted_error_mm": None if q is None else q.error_mm,
+                    "passed": None if q is None else q.passed,
+                    "outcome": None if q is None else q.outcome,
+                }
+            )
         return rows
 
     def _solver_summary(self) -> dict[str, Any]:
@@ -619,3 +838,38 @@ def _at_rest_near(robot: RobotState, goal: tuple[float, float] | None, tol: floa
         and abs(robot.vy) <= REST_SPEED
         and math.hypot(robot.x - goal[0], robot.y - goal[1]) <= tol
     )
+
+
+def _wrap(angle: float) -> float:
+    """`angle` folded into [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _load_floor(scenario: Scenario) -> Floor:
+    """The scenario's floor; with `rough_v_max`, every rough area is also a speed zone."""
+    if scenario.rough_v_max is None:
+        return load_floor(scenario.map)
+    spec = load_spec(scenario.map)
+    v = scenario.rough_v_max
+    slow = tuple(SpeedZone(f"{r.name} (rough)", r.polygon, (v, v)) for r in spec.rough_areas)
+    return compile_floor(replace(spec, zones=spec.zones + slow))
+
+
+def _quality_model(scenario: Scenario) -> QualityModel | None:
+    """The scenario's print-quality model (None when no job prints anything)."""
+    jobs = scenario.jobs
+    if not (scenario.parts or any(j.tasks for j in jobs.scripted)):
+        return None
+    from fleet import quality
+
+    q = scenario.quality
+    if q.calibration is None:
+        base = quality.default_model()
+    else:
+        base = quality.QualityModel.from_csv(q.calibration)
+    # Nozzle travel and the skirt, brim or wipe tower ("other") are not part of the finished
+    # part: judged only when the scenario gives them a tolerance.
+    tolerances = {kind: q.default_tolerance_mm for kind in ("contour", "infill", "support")}
+    tolerances.update(other=math.inf, travel=math.inf)
+    tolerances.update(q.tolerance_mm)
+    return replace(base, tolerances=tolerances, speed_metric=q.speed_metric)

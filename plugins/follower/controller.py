@@ -60,9 +60,14 @@ class PathFollower(Controller):
       reference) and the acceleration to ``a_max`` per axis.
     - **off track** (more than `REPLAN_ERROR` from the reference, e.g. after the engine
       substituted braking): brake to rest, then plan again.
-    - **speed cap** (``obs.speed_cap``): plans with a planner whose robot speed is the cap; a cap
-      lower than the current reference's makes the robot brake and replan (the braking itself
-      may exceed a cap that drops faster than ``a_max`` allows). A cap of zero holds the robot.
+    - **print speed caps** (``obs.speed_caps``, the caps of the coming
+      `fleet.plugins.CAP_LOOKAHEAD_S` seconds, and ``obs.speed_cap``): plans with a planner whose
+      robot speed is the tightest of them, so a cap never starts while the robot drives faster.
+      When that tightest cap changes the robot brakes to rest and replans (the planner plans
+      from rest): a tighter cap entering the window is met long before it starts (braking takes
+      ``v_max / a_max`` seconds, the window is a minute); a looser one costs a stop of
+      ``cap / a_max`` seconds. Conservative: the robot drives at the pace of the slowest task
+      of the coming minute. A cap of zero holds the robot.
     - **no path** (`NoPathError`): hold at rest with `ControlStatus.FALLBACK`, retrying only when
       the goal, the position or the cap changes.
 
@@ -132,11 +137,13 @@ class PathFollower(Controller):
             return self._brake(obs, ControlStatus.IDLE)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
         cap = spec.v_max if obs.speed_cap is None else min(spec.v_max, float(obs.speed_cap))
+        for _, _, piece_cap in obs.speed_caps:
+            cap = min(cap, float(piece_cap))
         if cap <= REST_SPEED:
             self._ref = None
             return self._brake(obs, ControlStatus.OK)
 
-        stale = goal != self._goal or cap < self._cap
+        stale = goal != self._goal or cap != self._cap
         if self._ref is not None and (stale or self._off_track(obs)):
             self._ref = None
         if self._ref is None:
