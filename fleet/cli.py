@@ -1,4 +1,4 @@
-"""The `fleet` command line: run scenarios, list plugins, inspect floor maps."""
+"""The `fleet` command line: run scenarios, list plugins, inspect floor maps and G-code files."""
 
 from __future__ import annotations
 
