@@ -138,8 +138,9 @@ class QSP:
     b: float
 
     def error(self, v: float | np.ndarray) -> float | np.ndarray:
-        """Predicted error (mm) at speed `v` (m/s); elementwise for arrays."""
-        return self.a * v + self.b
+        """Predicted error (mm) at speed `v` (m/s), never below 0 (a falling line fitted to
+        a user's data must not predict negative errors at speed); elementwise for arrays."""
+        return np.maximum(self.a * v + self.b, 0.0) if np.ndim(v) else max(self.a * v + self.b, 0.0)
 
     def max_speed(self, tol: float) -> float:
         """The largest speed v >= 0 such that the error stays within `tol` all over ``[0, v]``.
@@ -439,7 +440,8 @@ class QualityPrediction:
     """The predicted quality of one print: its tasks, its crossings and the verdict."""
 
     error_mm: float
-    """The largest task error (0 for a print without tasks)."""
+    """The largest error of a judged task (one with a finite tolerance; 0 when none is):
+    the skirt's or the nozzle travel's error does not describe the part."""
     outcome: Outcome
     passed: bool
     """True exactly when the outcome is good."""
@@ -630,7 +632,9 @@ class QualityModel:
         else:
             outcome = Outcome.DEFECTIVE
         return QualityPrediction(
-            max(task.error_mm for task in judged),
+            max(
+                (task.error_mm for task in judged if math.isfinite(task.tolerance_mm)), default=0.0
+            ),
             outcome,
             outcome is Outcome.GOOD,
             tuple(judged),

@@ -288,6 +288,7 @@ def test_case_study_2_outcomes_and_distances(tag, outcome, paper_m):
     world, result = run(REPO_ROOT / "scenarios" / f"paper_case2_{tag}.toml")
     rec = world.jobs[0]
     assert rec.job.part == "prism"
+    assert world.scenario.quality.scope == "print"  # whole parts, as the paper measured them
     assert 1150.0 < rec.print_end_s - rec.print_start_s < 1250.0  # about 20 minutes
     assert rec.quality.outcome == outcome
     assert all(n == 0 for n in result.summary["violations"].values())
@@ -316,3 +317,49 @@ def test_paper_case2_script_prints_the_table_beside_the_papers(tmp_path):
     assert "135.0" in row and row.split()[-2:] == ["pass", "pass"]
     assert "within 10% of the paper's: yes" in done.stdout
     assert (tmp_path / "c2" / "v02" / "jobs.csv").is_file()
+
+
+def test_a_via_station_beyond_a_wall_is_refused_at_load(tmp_path):
+    path = track_scenario(tmp_path, 'via = ["east"]\n')
+    walled = TRACK + '\n[[obstacles]]\nname = "wall"\nrect = [15, -1, 15.5, 1]\n'
+    (tmp_path / "track.toml").write_text(walled)
+    path.write_text(path.read_text().replace('station = "east"', 'station = "mid"'))
+    with pytest.raises(ScenarioError) as err:
+        World(load_scenario(path))
+    assert err.value.field == "jobs.scripted[0].via[0]" and "cannot be reached" in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("body", "field", "needle"),
+    [
+        ('via = ["mid"]\nshuttle = true\n', "jobs.scripted[0].shuttle", "needs a part or print"),
+        (
+            'via = ["mid", "mid"]\nshuttle = true\n'
+            'print = [{ kind = "infill", start_s = 0, end_s = 30 }]\n',
+            "jobs.scripted[0].via",
+            "two via stations at different places",
+        ),
+    ],
+)
+def test_a_shuttle_that_could_never_move_is_refused(tmp_path, body, field, needle):
+    with pytest.raises(ScenarioError) as err:
+        World(load_scenario(track_scenario(tmp_path, body)))
+    assert err.value.field == field and needle in str(err.value)
+
+
+def test_a_bad_classification_names_the_scenario_entry(tmp_path):
+    gcode = REPO_ROOT / "parts" / "prism_40x20x2.gcode"
+    extra = f'[parts]\nprism = "{gcode}"\n[print]\nclassify = {{ " " = "contour" }}\n'
+    path = track_scenario(tmp_path, 'part = "prism"\n', extra=extra)
+    with pytest.raises(ScenarioError) as err:
+        World(load_scenario(path))
+    assert err.value.source == str(path) and err.value.field == "parts.prism"
+
+
+def test_bumps_during_nozzle_travel_do_not_count_as_the_parts_error(tmp_path):
+    # "other" (skirt, wipe tower) and "travel" have no tolerance by default: a bump crossed
+    # then may still fail the print if it kicks hard enough, but it is not the part's error.
+    body = 'print = [{ kind = "other", start_s = 0, end_s = 150 }]\n'
+    world, _ = run(track_scenario(tmp_path, body, v_max=0.6))
+    q = world.jobs[0].quality
+    assert q.tasks[0].vibration_mm > 0.05 and q.error_mm == 0.0 and q.outcome == "good"

@@ -16,7 +16,9 @@ Output contract (extend it, never break it):
   arrived, delivered).
 - ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
   predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
-  printed); started/finished are the print's start and end.
+  printed); started/finished are the print's start and end (for a job with nothing to print,
+  started is when the robot set off). summary quality counts every print judged, delivered or
+  not; jobs.good/defective count delivered jobs only.
 - ``caps.csv``: robot, job, kind, start_s, end_s, cap: the print-task speed caps each robot was
   under (absolute seconds; written when any job prints).
 - ``violations.csv``: the first violations in full, when there are any.

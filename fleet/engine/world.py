@@ -27,7 +27,7 @@ import simpy
 from fleet.bus import AgentHost, Exchange
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
-from fleet.errors import FleetError, NoPathError, PluginError, ScenarioError
+from fleet.errors import FleetError, GcodeError, NoPathError, PluginError, ScenarioError
 from fleet.floor import Floor, SpeedZone, compile_floor, load_floor, load_spec
 from fleet.paths import PathPlanner
 from fleet.plugins import (
@@ -48,7 +48,7 @@ from fleet.plugins import (
 from fleet.printing import CapSchedule, PrintSchedule, PrintTask
 from fleet.robot import DoubleIntegrator, brake_input
 from fleet.safety import SafetyChecker, SafetyReport
-from fleet.scenario import Scenario
+from fleet.scenario import Scenario, ScriptedJob
 
 if TYPE_CHECKING:
     from fleet.quality import QualityModel
@@ -135,9 +135,7 @@ class World:
 
     def __init__(self, scenario: Scenario, floor: Floor | None = None) -> None:
         self.scenario = scenario
-        if floor is None:
-            floor = _load_floor(scenario)
-        self.floor = floor
+        self.floor = _load_floor(scenario, floor)
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
@@ -226,7 +224,13 @@ class World:
 
         out = {}
         for name, path in sc.parts.items():
-            analysis = analyze(path, min_task_s=sc.min_task_s, classification=sc.classify or None)
+            try:
+                analysis = analyze(
+                    path, min_task_s=sc.min_task_s, classification=sc.classify or None
+                )
+            except (GcodeError, ValueError) as exc:
+                # Name the scenario's entry too: the user may not know which file it points to.
+                raise ScenarioError(sc.source, f"parts.{name}", str(path), str(exc)) from None
             out[name] = analysis.print_tasks()
         return out
 
@@ -272,9 +276,11 @@ class World:
         starts = {self._components[self.floor.locate(*h)] for h in homes}
         jobs = self.scenario.jobs
         if jobs.mode == "scripted":
-            targets = [
-                (f"jobs.scripted[{i}].station", j.station) for i, j in enumerate(jobs.scripted)
-            ]
+            targets = []
+            for i, j in enumerate(jobs.scripted):
+                targets.append((f"jobs.scripted[{i}].station", j.station))
+                targets += [(f"jobs.scripted[{i}].via[{k}]", name) for k, name in enumerate(j.via)]
+                self._check_shuttle(i, j)
         else:
             targets = [("jobs.stations", name) for name in self.job_source.stations]
         for field_name, name in targets:
@@ -288,6 +294,25 @@ class World:
                     f"station {name!r} on {self.floor.source} cannot be reached from every "
                     "robot's start (the floor is split into unconnected parts)",
                 )
+
+    def _check_shuttle(self, i: int, job: ScriptedJob) -> None:
+        """A shuttle needs a print to last for, and two via stations apart, or it never moves."""
+        if not job.shuttle:
+            return
+        src = self.scenario.source
+        if not (job.tasks or job.part):
+            raise ScenarioError(
+                src, f"jobs.scripted[{i}].shuttle", True, "a shuttle needs a part or print"
+            )
+        points = [self.floor.station(name) for name in job.via]
+        apart = 2.0 * self.scenario.arrival_tolerance_m
+        if all(math.hypot(p.x - points[0].x, p.y - points[0].y) <= apart for p in points):
+            raise ScenarioError(
+                src,
+                f"jobs.scripted[{i}].via",
+                list(job.via),
+                "a shuttle needs at least two via stations at different places",
+            )
 
     def _claim(
         self, spots, taken, spacing: float, name: str, where: str, count: int
@@ -416,10 +441,10 @@ class World:
             goal = r.goal
             if goal is None and r.return_home:
                 goal = r.home
-            if r.turn_rate is not None and goal is not None and self._turning(r, goal, t, tol):
-                goal = (r.x, r.y)  # turning on the spot: hold here until the turn is done
             if r.job is not None and r.job.tasks and r.job.print_start_s is None:
                 self._start_print(r, t)
+            if r.turn_rate is not None and goal is not None and self._turning(r, goal, t, tol):
+                goal = (r.x, r.y)  # turning on the spot: hold here until the turn is done
             caps = r.job.caps if r.job is not None else None
             cap = None
             window: tuple[tuple[float, float, float], ...] = ()
@@ -845,11 +870,12 @@ def _wrap(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _load_floor(scenario: Scenario) -> Floor:
-    """The scenario's floor; with `rough_v_max`, every rough area is also a speed zone."""
+def _load_floor(scenario: Scenario, floor: Floor | None) -> Floor:
+    """The scenario's floor (or `floor`); with `rough_v_max`, every rough area is also a speed
+    zone."""
     if scenario.rough_v_max is None:
-        return load_floor(scenario.map)
-    spec = load_spec(scenario.map)
+        return floor if floor is not None else load_floor(scenario.map)
+    spec = floor.spec if floor is not None else load_spec(scenario.map)
     v = scenario.rough_v_max
     slow = tuple(SpeedZone(f"{r.name} (rough)", r.polygon, (v, v)) for r in spec.rough_areas)
     return compile_floor(replace(spec, zones=spec.zones + slow))
