@@ -306,24 +306,12 @@ def load_scenario(path: str | Path) -> Scenario:
     pr = root.table("print")
     caps = {}
     for kind, cap in pr.take("caps", dict, {}).items():
-        if kind not in TASK_KINDS:
-            raise ScenarioError(
-                src,
-                f"print.caps.{kind}",
-                cap,
-                f"unknown task kind (known: {', '.join(TASK_KINDS)})",
-            )
+        _check_kind(src, f"print.caps.{kind}", cap, kind)
         caps[kind] = _positive(src, f"print.caps.{kind}", cap)
     min_task = _non_negative(src, "print.min_task_s", pr.take("min_task_s", (int, float), 10.0))
     classify = {}
     for feature, kind in pr.take("classify", dict, {}).items():
-        if kind not in TASK_KINDS:
-            raise ScenarioError(
-                src,
-                f"print.classify.{feature}",
-                kind,
-                f"unknown task kind (known: {', '.join(TASK_KINDS)})",
-            )
+        _check_kind(src, f"print.classify.{feature}", kind, kind)
         classify[feature] = kind
     pr.finish()
 
@@ -364,6 +352,12 @@ def load_scenario(path: str | Path) -> Scenario:
     )
 
 
+def _check_kind(src: str, fld: str, value: Any, kind: str) -> None:
+    """`kind` must be a task kind; `value` is what the file wrote at `fld`."""
+    if kind not in TASK_KINDS:
+        raise ScenarioError(src, fld, value, f"unknown task kind (known: {', '.join(TASK_KINDS)})")
+
+
 def _unknown_part(parts: dict[str, Path]) -> str:
     known = ", ".join(sorted(parts)) or "none: add a [parts] table"
     return f"no such part in [parts] (known: {known})"
@@ -383,13 +377,7 @@ def _quality(q: _Table, path: Path) -> QualityConfig:
     default_tol, per_kind = 0.05, {}
     if isinstance(tol, dict):
         for kind, value in tol.items():
-            if kind not in TASK_KINDS:
-                raise ScenarioError(
-                    src,
-                    f"quality.tolerance_mm.{kind}",
-                    value,
-                    f"unknown task kind (known: {', '.join(TASK_KINDS)})",
-                )
+            _check_kind(src, f"quality.tolerance_mm.{kind}", value, kind)
             per_kind[kind] = _positive(src, f"quality.tolerance_mm.{kind}", value)
     else:
         default_tol = _positive(src, "quality.tolerance_mm", tol)
@@ -409,13 +397,7 @@ def _print_tasks(src: str, where: str, items: list[dict]) -> tuple[PrintTask, ..
     for i, item in enumerate(items):
         t = _Table(src, f"{where}[{i}].", item)
         kind = t.take("kind", str, required=True)
-        if kind not in TASK_KINDS:
-            raise ScenarioError(
-                src,
-                f"{where}[{i}].kind",
-                kind,
-                f"unknown task kind (known: {', '.join(TASK_KINDS)})",
-            )
+        _check_kind(src, f"{where}[{i}].kind", kind, kind)
         start = _non_negative(
             src, f"{where}[{i}].start_s", t.take("start_s", (int, float), required=True)
         )
