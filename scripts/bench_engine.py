@@ -42,9 +42,11 @@ def main() -> None:
     never = JobsConfig(mode="scripted", scripted=(ScriptedJob(1e12, floor.spec.stations[-1].name),))
     for n, load in [(n, load) for n in args.sizes for load in ("busy", "idle")]:
         duration = max(10.0, args.steps * base.robots[0].period_s / n)
-        busy = replace(base.jobs, rate_per_h=30.0 * n)
+        # Plain deliveries: the default scenario's parts and print caps would make this a
+        # benchmark of the follower's cap policy instead of the engine.
+        busy = replace(base.jobs, rate_per_h=30.0 * n, parts=())
         jobs = busy if load == "busy" else never
-        sc = replace(base.override(robots=n, duration=duration), jobs=jobs)
+        sc = replace(base.override(robots=n, duration=duration), jobs=jobs, parts={}, print_caps={})
         setups, runs, rates = [], [], []
         for _ in range(args.repeats):
             t0 = time.perf_counter()
