@@ -65,11 +65,8 @@ class JobRecord:
 
     def printing(self, t: float) -> bool:
         """Whether the print is under way at time `t`."""
-        return (
-            self.print_start_s is not None
-            and self.print_start_s <= t
-            and not (self.printing_done(t))
-        )
+        start = self.print_start_s
+        return start is not None and start <= t and not self.printing_done(t)
 
     @property
     def late(self) -> bool:

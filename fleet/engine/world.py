@@ -362,10 +362,8 @@ class World:
             item = self.job_source.scripted.pop(job.id, None)
             via: tuple[tuple[str, float, float], ...] = ()
             if item is not None:
-                via = tuple(
-                    (name, self.floor.station(name).x, self.floor.station(name).y)
-                    for name in item.via
-                )
+                stations = [self.floor.station(name) for name in item.via]
+                via = tuple((s.name, s.x, s.y) for s in stations)
             rec = JobRecord(job, tasks=tasks, via=via, shuttle=item is not None and item.shuttle)
             self.jobs.append(rec)
             self.recorder.event(t, "released", job.id, station=job.station)
