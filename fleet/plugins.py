@@ -170,7 +170,9 @@ class Observation:
     window, `CAP_LOOKAHEAD_S` from `t`) and `speed_cap` is the tightest cap
     over this tick's step ``[t, t + period)``, None when no piece overlaps it. A velocity held
     over a step must respect every piece that overlaps the step
-    (`fleet.printing.CapSchedule` computes per-step caps).
+    (`fleet.printing.CapSchedule` computes per-step caps). `print_end_s` is when the current
+    job's print ends (None: no print, or not started yet); a strategy that prints standing
+    before it drives waits for it.
     """
 
     robot: str
@@ -185,6 +187,7 @@ class Observation:
     speed_cap: float | None = None
     neighbours: tuple[Neighbour, ...] = ()
     speed_caps: tuple[tuple[float, float, float], ...] = ()
+    print_end_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

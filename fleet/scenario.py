@@ -11,10 +11,13 @@ import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fleet.errors import ScenarioError
 from fleet.printing import TASK_KINDS, PrintSchedule, PrintTask
+
+if TYPE_CHECKING:
+    from fleet.quality import QualityModel
 
 __all__ = [
     "RobotsConfig",
@@ -24,6 +27,7 @@ __all__ = [
     "QualityConfig",
     "Scenario",
     "load_scenario",
+    "parse_scenario",
     "default_scenario",
     "REPO_ROOT",
 ]
@@ -112,6 +116,25 @@ class QualityConfig:
     speed_metric: str = "mean"
     scope: str = "task"
 
+    def model(self) -> QualityModel:
+        """The quality model this configuration describes.
+
+        Contour, infill and support are judged against their tolerances; nozzle travel and the
+        skirt, brim or wipe tower ("other") are not part of the finished part, so they are
+        judged only when given a tolerance of their own.
+        """
+        from fleet import quality
+
+        base = (
+            quality.default_model()
+            if self.calibration is None
+            else quality.QualityModel.from_csv(self.calibration)
+        )
+        tolerances = {kind: self.default_tolerance_mm for kind in ("contour", "infill", "support")}
+        tolerances.update(other=math.inf, travel=math.inf)
+        tolerances.update(self.tolerance_mm)
+        return replace(base, tolerances=tolerances, speed_metric=self.speed_metric)
+
 
 @dataclass(frozen=True)
 class Scenario:
@@ -131,6 +154,9 @@ class Scenario:
     sensing_radius_m: float = 0.0  # > 0: observations list the robots this close (nearest 8)
     #: Per-axis speed cap (m/s) of each print task kind; kinds not listed are not capped.
     print_caps: dict[str, float] = field(default_factory=dict)
+    #: Whether the print caps are speed limits (checked as violations) or only advice that
+    #: controllers see in their observations and may ignore (studies of naive strategies).
+    enforce_print_caps: bool = True
     #: Parts jobs may print: name -> G-code file.
     parts: dict[str, Path] = field(default_factory=dict)
     #: Shortest print task (s) after merging the G-code's features (`fleet.gcode`).
@@ -203,6 +229,18 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(src, "(file)", src, "no such scenario file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
+    return parse_scenario(raw, path)
+
+
+def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None = None) -> Scenario:
+    """Validate a scenario's TOML tables `raw` as if read from the file `path`.
+
+    Relative paths in `raw` (map, parts, calibration) are relative to `path`'s folder, and
+    errors name `source` (default: `path`). `fleet.study` uses this to validate a scenario with
+    a study cell's values written over the file's.
+    """
+    path = Path(path)
+    src = source if source is not None else str(path)
     root = _Table(src, "", raw)
     sc = root.table("scenario")
     name = sc.take("name", str, path.stem)
@@ -304,10 +342,20 @@ def load_scenario(path: str | Path) -> Scenario:
             raise ScenarioError(src, f"jobs.scripted[{i}].part", item.part, _unknown_part(parts))
 
     pr = root.table("print")
+    caps_value = pr.take("caps", (dict, str), {})
     caps = {}
-    for kind, cap in pr.take("caps", dict, {}).items():
+    if isinstance(caps_value, str) and caps_value != "quality":
+        raise ScenarioError(
+            src,
+            "print.caps",
+            caps_value,
+            'must be a table of caps per kind, e.g. { contour = 0.3 }, or "quality" (the '
+            "QSP's fastest speed within each kind's [quality] tolerance)",
+        )
+    for kind, cap in ({} if isinstance(caps_value, str) else caps_value).items():
         _check_kind(src, f"print.caps.{kind}", cap, kind)
         caps[kind] = _positive(src, f"print.caps.{kind}", cap)
+    enforce = pr.take("enforce", bool, True)
     min_task = _non_negative(src, "print.min_task_s", pr.take("min_task_s", (int, float), 10.0))
     classify = {}
     for feature, kind in pr.take("classify", dict, {}).items():
@@ -316,6 +364,8 @@ def load_scenario(path: str | Path) -> Scenario:
     pr.finish()
 
     quality = _quality(root.table("quality"), path)
+    if caps_value == "quality":
+        caps = {k: c for k, c in quality.model().caps().items() if math.isfinite(c)}
     fl = root.table("floor")
     rough = fl.take("rough_v_max", (int, float), None)
     if rough is not None:
@@ -344,6 +394,7 @@ def load_scenario(path: str | Path) -> Scenario:
         arrival_tolerance_m=float(tol),
         sensing_radius_m=float(sensing),
         print_caps=caps,
+        enforce_print_caps=enforce,
         parts=parts,
         min_task_s=float(min_task),
         classify=classify,

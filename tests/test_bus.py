@@ -164,6 +164,7 @@ OBS_FULL = Observation(
     speed_cap=0.3,
     neighbours=(Neighbour("r2", 4.0, -2.0, 0.1, 0.0), Neighbour("r3", 1.0, 1.0, 0.0, -0.2)),
     speed_caps=((1.75, 21.0, 0.3), (21.0, 51.0, 0.5)),
+    print_end_s=1242.5,
 )
 OBS_IDLE = Observation("r2", 7, 1.75, 0.0, 0.0, 0.0, 0.0)  # goal None, no job, no neighbours
 CMD_PLAN = Command(
@@ -263,7 +264,7 @@ def test_any_finite_observation_and_command_survive_the_wire_exactly(obs, cmd, t
 
 
 def envelope(**over) -> dict:
-    env = {"version": 2, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
+    env = {"version": 3, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
     env.update(over)
     return env
 
@@ -290,7 +291,7 @@ MALFORMED = [
     (b'{"version": 1} trailing', "is not valid JSON"),
     (raw([1, 2, 3]), "must be a JSON object"),
     (raw(envelope(version=1)), "version = 1: unsupported schema version"),
-    (raw(envelope(version=3)), "version = 3: unsupported schema version"),
+    (raw(envelope(version=4)), "version = 4: unsupported schema version"),
     (raw(envelope(version="1")), "version = '1'"),
     (raw({"kind": "bye"}), "version = None"),
     (raw(envelope(kind="shout")), "kind = 'shout': must be one of 'hello'"),
@@ -324,6 +325,7 @@ MALFORMED = [
     (raw(act_with(plan=[[0.0, 1.0, 12345.5]])).replace(b"12345.5", b"-1e400"), "plan[0] = -inf"),
     (raw(act_with(plan={"t": 1})), "plan = {'t': 1}: must be an array"),
     (raw(observe_with(speed_caps=None)), "speed_caps = None: must be an array"),
+    (raw(observe_with(print_end_s="soon")), "print_end_s = 'soon': must be a finite number"),
     (raw(observe_with(speed_caps=[[0.0, 1.0]])), "speed_caps[0] = [0.0, 1.0]: must be"),
     (raw(observe_with(speed_caps=[[2.0, 1.0, 0.3]])), "speed_caps[0] = [2.0, 1.0, 0.3]"),
     (

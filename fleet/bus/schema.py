@@ -1,15 +1,16 @@
-"""The bus's wire schema: what the engine and the robot agents say to each other, version 2.
+"""The bus's wire schema: what the engine and the robot agents say to each other, version 3.
 
 Every message is one ZeroMQ frame holding one compact UTF-8 JSON object, the *envelope*::
 
-    {"version": 2, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
+    {"version": 3, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
 
 `kind` says what the body holds (see `MessageKind`); `tick` is the engine's control tick the
 message belongs to (0 for HELLO). Observations and commands travel as JSON objects whose fields
 are exactly those of `fleet.plugins.Observation` and `fleet.plugins.Command`; small fixed
 tuples travel as arrays: a goal is ``[x, y]``, a neighbour ``[robot, x, y, vx, vy]``, a plan
 sample ``[t, x, y]``, a speed-cap piece ``[start_s, end_s, cap]``, a solve report
-``[outcome, solver_s, step_s]``. (Version 2 added ``speed_caps`` and ``solve``.) Every field
+``[outcome, solver_s, step_s]``. (Version 2 added ``speed_caps`` and ``solve``, version 3
+``print_end_s``.) Every field
 is always present (``null`` where the dataclass holds None), so a message either matches the
 schema exactly or is rejected.
 
@@ -50,7 +51,7 @@ __all__ = [
     "command_from_wire",
 ]
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 """The version this build writes and the only one it reads."""
 
 
@@ -225,6 +226,7 @@ def observation_to_wire(o: Observation) -> dict[str, Any]:
             [n.robot, float(n.x), float(n.y), float(n.vx), float(n.vy)] for n in o.neighbours
         ],
         "speed_caps": [[float(a), float(b), float(c)] for a, b, c in o.speed_caps],
+        "print_end_s": None if o.print_end_s is None else float(o.print_end_s),
     }
 
 
@@ -294,6 +296,7 @@ _OBSERVATION_FIELDS = frozenset(
         "speed_cap",
         "neighbours",
         "speed_caps",
+        "print_end_s",
     )
 )
 _COMMAND_FIELDS = frozenset(("ax", "ay", "status", "plan", "solve"))
@@ -511,6 +514,9 @@ def _observation(d: Any, prefix: str, index: int | None = None) -> Observation:
     caps = d["speed_caps"]
     if type(caps) is not list:
         raise _fail(f"{_at(prefix, index)}.speed_caps", caps, "must be an array")
+    print_end = d["print_end_s"]
+    if print_end is not None:
+        print_end = _number(print_end, prefix, "print_end_s", index)
     t, x, y, vx, vy = d["t"], d["x"], d["y"], d["vx"], d["vy"]
     # Fast path: all plain floats, and x - x == 0.0 only for finite x (inf and nan give nan).
     if (
@@ -541,6 +547,7 @@ def _observation(d: Any, prefix: str, index: int | None = None) -> Observation:
         if neighbours
         else (),
         _cap_pieces(caps, f"{_at(prefix, index)}.speed_caps") if caps else (),
+        print_end,
     )
 
 

@@ -21,6 +21,10 @@ Output contract (extend it, never break it):
   not; jobs.good/defective count delivered jobs only.
 - ``caps.csv``: robot, job, kind, start_s, end_s, cap: the print-task speed caps each robot was
   under (absolute seconds; written when any job prints).
+- ``tasks.csv``: robot, job, kind, start_s, end_s: every print task, capped or not, on the clock.
+- ``plans.csv``: t_sent, robot, k, t, x, y: the planned horizons controllers sent (sample k of
+  the plan sent at t_sent; a plan holds until the robot's next), at most one per robot per
+  second.
 - ``violations.csv``: the first violations in full, when there are any.
 """
 
@@ -29,6 +33,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,7 +42,10 @@ import numpy as np
 
 from fleet.floor import Floor
 
-__all__ = ["Event", "Recorder", "Trajectory"]
+__all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S"]
+
+#: Shortest time (s) between two planned horizons the recorder keeps for one robot.
+PLAN_RECORD_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,12 +94,23 @@ class Recorder:
     def __init__(self, robots: list[str]) -> None:
         self.trajectories: dict[str, Trajectory] = {r: Trajectory() for r in robots}
         self.events: list[Event] = []
+        #: Planned horizons as sent: (t_sent, robot, ((t, x, y), ...)), at most one per robot
+        #: per `PLAN_RECORD_S`.
+        self.plans: list[tuple[float, str, tuple[tuple[float, float, float], ...]]] = []
+        self._plan_kept: dict[str, float] = {}
 
     def sample(self, robot: str, t: float, x: float, y: float, vx: float, vy: float) -> None:
         self.trajectories[robot].append(t, x, y, vx, vy)
 
     def event(self, t: float, event: str, job: str, robot: str = "", station: str = "") -> None:
         self.events.append(Event(t, event, job, robot, station))
+
+    def plan(self, robot: str, t: float, samples: tuple[tuple[float, float, float], ...]) -> None:
+        """Keep a robot's planned horizon sent at `t`, unless one was kept less than
+        `PLAN_RECORD_S` ago (an MPC sends one every tick; the replay needs about one a second)."""
+        if t - self._plan_kept.get(robot, -math.inf) >= PLAN_RECORD_S - 1e-9:
+            self._plan_kept[robot] = t
+            self.plans.append((t, robot, samples))
 
     def digest(self) -> str:
         """sha256 over every robot's exact samples, robots in name order."""
@@ -112,9 +131,11 @@ class Recorder:
         violations: list,
         caps: list[tuple[str, str, str, float, float, float]] | None = None,
         jobs: list[dict[str, Any]] | None = None,
+        tasks: list[tuple[str, str, str, float, float]] | None = None,
     ) -> None:
         """Write the run directory; `caps` rows are (robot, job, kind, start_s, end_s, cap),
-        `jobs` rows are `World.job_rows` dicts."""
+        `jobs` rows are `World.job_rows` dicts, `tasks` rows (robot, job, kind, start_s, end_s)
+        every print task on the clock. ``plans.csv`` holds the kept planned horizons."""
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(
             json.dumps(summary, indent=2) + "\n", encoding="utf-8"
@@ -127,6 +148,20 @@ class Recorder:
                 w.writerow([f"{e.t:.6f}", e.event, e.job, e.robot, e.station])
         if jobs is not None:
             _write_jobs(out_dir / "jobs.csv", jobs)
+        _write_rows(
+            out_dir / "tasks.csv",
+            ("robot", "job", "kind", "start_s", "end_s"),
+            [(r, j, k, f"{a:.6f}", f"{b:.6f}") for r, j, k, a, b in tasks or ()],
+        )
+        _write_rows(
+            out_dir / "plans.csv",
+            ("t_sent", "robot", "k", "t", "x", "y"),
+            [
+                (f"{sent:.3f}", robot, k, f"{t:.3f}", f"{x:.4f}", f"{y:.4f}")
+                for sent, robot, samples in self.plans
+                for k, (t, x, y) in enumerate(samples)
+            ],
+        )
         cpath = out_dir / "caps.csv"
         if caps:
             with open(cpath, "w", newline="", encoding="utf-8") as fh:
@@ -179,6 +214,13 @@ JOB_COLUMNS = (
     "due_s",
     "outcome",
 )
+
+
+def _write_rows(path: Path, header: tuple[str, ...], rows: list[tuple]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
 
 
 def _write_jobs(path: Path, rows: list[dict[str, Any]]) -> None:

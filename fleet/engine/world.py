@@ -17,7 +17,8 @@ import math
 import time
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import networkx as nx
@@ -28,7 +29,7 @@ from fleet.bus import AgentHost, Exchange
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
 from fleet.errors import FleetError, GcodeError, NoPathError, PluginError, ScenarioError
-from fleet.floor import Floor, SpeedZone, compile_floor, load_floor, load_spec
+from fleet.floor import Floor, load_floor, load_spec, slow_on_rough
 from fleet.paths import PathPlanner
 from fleet.plugins import (
     CAP_LOOKAHEAD_S,
@@ -199,6 +200,8 @@ class World:
         self.exchange.wait_for_agents(list(self.robots))
 
         self._ran = False
+        #: The run's outcome once `run` has returned.
+        self.result: RunResult | None = None
         self._pending: list[tuple[RobotState, simpy.Event]] = []
         self._round = 0
         self._dispatch_scheduled = False
@@ -417,6 +420,7 @@ class World:
                 self.stats[f"commands_{cmd.status.value}"] += 1
             if cmd.plan:
                 robot.plan = cmd.plan  # an empty plan means the previous one still holds
+                self.recorder.plan(robot.id, t, cmd.plan)
             if cmd.solve is not None:
                 self.solves.append(cmd.solve)
             a = robot.spec.a_max
@@ -464,6 +468,7 @@ class World:
                     speed_cap=cap,
                     neighbours=near.get(r.id, ()),
                     speed_caps=window,
+                    print_end_s=None if r.job is None else r.job.print_end_s,
                 )
             )
         return out
@@ -682,7 +687,8 @@ class World:
             self.exchange.close()
             self.host.close()
         wall = time.perf_counter() - wall0
-        return self._summarise(wall)
+        self.result = self._summarise(wall)
+        return self.result
 
     def _progress(self, progress: Callable[[float], None], duration: float):
         step = max(duration / 200.0, min(r.spec.period for r in self.robots.values()))
@@ -694,7 +700,9 @@ class World:
         sc = self.scenario
         trajectories = {rid: tr.arrays() for rid, tr in self.recorder.trajectories.items()}
         radii = {rid: r.spec.radius for rid, r in self.robots.items()}
-        caps = {rid: r.caps() for rid, r in self.robots.items()}
+        # Caps that are only advice (`[print] enforce = false`) are not limits to check.
+        enforced = sc.enforce_print_caps
+        caps = {rid: r.caps() if enforced else CapSchedule() for rid, r in self.robots.items()}
         safety = SafetyChecker(self.floor).check(trajectories, radii, caps)
         for rec in self.jobs:  # prints that finished but were not delivered by the end
             if rec.print_end_s is not None and rec.print_end_s <= self.env.now + 1e-9:
@@ -748,6 +756,10 @@ class World:
             "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
             "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
             "violations": dict(safety.counts),
+            "print_caps": {
+                "caps": dict(sorted(sc.print_caps.items())),
+                "enforced": sc.enforce_print_caps,
+            },
             "quality": self._quality_summary(),
             "solver": self._solver_summary(),
             "per_robot": per_robot,
@@ -772,9 +784,23 @@ class World:
             summary["arrivals"] = last
         return RunResult(summary, safety, list(self.jobs))
 
-    def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
-        """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows."""
-        caps = self.scenario.print_caps
+    def write(self, out: Path) -> None:
+        """Write the run directory (see `fleet.engine.recorder`) after `run`."""
+        if self.result is None:
+            raise FleetError("write needs a finished run: call run() first")
+        self.recorder.write(
+            out,
+            self.result.summary,
+            self.floor,
+            self.result.safety.examples,
+            self.cap_rows(),
+            self.job_rows(),
+            self.task_rows(),
+        )
+
+    def task_rows(self) -> list[tuple[str, str, str, float, float]]:
+        """Every print task that started: (robot, job, kind, start_s, end_s) rows on the clock,
+        cut at delivery."""
         rows = []
         for rec in self.jobs:
             if rec.robot is None or rec.print_start_s is None:
@@ -783,9 +809,14 @@ class World:
             for task in rec.tasks:
                 start = rec.print_start_s + task.start_s
                 end = min(rec.print_start_s + task.end_s, stop)
-                if task.kind in caps and end > start:
-                    rows.append((rec.robot, rec.job.id, task.kind, start, end, caps[task.kind]))
+                if end > start:
+                    rows.append((rec.robot, rec.job.id, task.kind, start, end))
         return rows
+
+    def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
+        """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows."""
+        caps = self.scenario.print_caps
+        return [(*row, caps[row[2]]) for row in self.task_rows() if row[2] in caps]
 
     def _quality_summary(self) -> dict[str, Any]:
         """Outcomes of the prints judged so far and the largest predicted error."""
@@ -874,9 +905,7 @@ def _load_floor(scenario: Scenario, floor: Floor | None) -> Floor:
     if scenario.rough_v_max is None:
         return floor if floor is not None else load_floor(scenario.map)
     spec = floor.spec if floor is not None else load_spec(scenario.map)
-    v = scenario.rough_v_max
-    slow = tuple(SpeedZone(f"{r.name} (rough)", r.polygon, (v, v)) for r in spec.rough_areas)
-    return compile_floor(replace(spec, zones=spec.zones + slow))
+    return slow_on_rough(spec, scenario.rough_v_max)
 
 
 def _quality_model(scenario: Scenario) -> QualityModel | None:
@@ -884,16 +913,4 @@ def _quality_model(scenario: Scenario) -> QualityModel | None:
     jobs = scenario.jobs
     if not (scenario.parts or any(j.tasks for j in jobs.scripted)):
         return None
-    from fleet import quality
-
-    q = scenario.quality
-    if q.calibration is None:
-        base = quality.default_model()
-    else:
-        base = quality.QualityModel.from_csv(q.calibration)
-    # Nozzle travel and the skirt, brim or wipe tower ("other") are not part of the finished
-    # part: judged only when the scenario gives them a tolerance.
-    tolerances = {kind: q.default_tolerance_mm for kind in ("contour", "infill", "support")}
-    tolerances.update(other=math.inf, travel=math.inf)
-    tolerances.update(q.tolerance_mm)
-    return replace(base, tolerances=tolerances, speed_metric=q.speed_metric)
+    return scenario.quality.model()

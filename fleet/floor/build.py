@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import shapely
@@ -28,7 +29,7 @@ from fleet.floor.decompose import convex_pieces, polygons_of
 from fleet.floor.mapfile import grow, load_spec
 from fleet.floor.spec import FloorSpec, SpeedZone
 
-__all__ = ["compile_floor", "load_floor", "free_space", "speed_cells", "GRID"]
+__all__ = ["compile_floor", "load_floor", "slow_on_rough", "free_space", "speed_cells", "GRID"]
 
 #: Grid (m) that all set operations snap to.
 GRID = 1e-6
@@ -107,6 +108,14 @@ def compile_floor(spec: FloorSpec) -> Floor:
                 f"{_why_blocked(spec, s.x, s.y)}; move it further from obstacles and walls",
             )
     return floor
+
+
+def slow_on_rough(spec: FloorSpec, v_max: float) -> Floor:
+    """`spec` compiled with every rough area also a speed zone of `v_max` (m/s per axis): the
+    paper's "varying" strategy, slow over bumps and rough floor."""
+    v = (v_max, v_max)
+    slow = tuple(SpeedZone(f"{r.name} (rough)", r.polygon, v) for r in spec.rough_areas)
+    return compile_floor(replace(spec, zones=spec.zones + slow))
 
 
 def free_space(spec: FloorSpec) -> Polygon | MultiPolygon:

@@ -1,12 +1,18 @@
 """The path follower: the baseline controller, tracking the path layer's exact reference.
 
-Registered as ``follower`` under the ``fleet.controllers`` entry-point group. Scenario options::
+Registered under the ``fleet.controllers`` entry-point group as ``follower`` and as three
+print strategies built on it, for throughput studies::
 
     [controller]
     name = "follower"
-    options = { gain = 0.5 }   # position feedback per period, in [0, 1]
+    options = { gain = 0.5 }   # position feedback per period, in [0, 1]; also speed (m/s),
+                               # caps ("window", "ahead", "ignore"), print_first (bool)
+
+    name = "fixed_speed", options = { speed = 0.2 }  # print while driving at one speed
+    name = "qsp_speed"                               # each print task at its own cap
+    name = "print_first"                             # print standing, then drive
 """
 
-from fleet_plugins.follower.controller import PathFollower
+from fleet_plugins.follower.controller import FixedSpeed, PathFollower, PrintFirst, QSPSpeed
 
-__all__ = ["PathFollower"]
+__all__ = ["PathFollower", "FixedSpeed", "QSPSpeed", "PrintFirst"]

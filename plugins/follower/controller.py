@@ -19,10 +19,15 @@ from fleet.plugins import Command, Controller, ControllerContext, ControlStatus,
 from fleet.robot import brake_input, clip
 
 if TYPE_CHECKING:
+    from fleet.floor import Floor
     from fleet.paths import PathPlanner, Reference
 
 __all__ = [
     "PathFollower",
+    "FixedSpeed",
+    "QSPSpeed",
+    "PrintFirst",
+    "CAP_MODES",
     "REST_SPEED",
     "FEEDBACK_DEADBAND",
     "REPLAN_ERROR",
@@ -40,6 +45,8 @@ REPLAN_ERROR = 1e-3
 PLAN_HORIZON = 5.0
 #: Spacing (s) of the `Command.plan` samples.
 PLAN_SAMPLE = 1.0
+#: How the follower takes print caps (option ``caps``): see `PathFollower`.
+CAP_MODES = ("window", "ahead", "ignore")
 
 
 class PathFollower(Controller):
@@ -81,27 +88,68 @@ class PathFollower(Controller):
     gain:
         Fraction of a position error removed per period, in [0, 1]. With exact tracking the
         error is rounding only and the feedback never acts.
+    speed:
+        Cruising speed (m/s per axis) below the robot's own limit; None: the robot's ``v_max``.
+    caps:
+        How print caps bind: ``"window"`` (default) plans at the tightest cap of the whole
+        look-ahead window, as above; ``"ahead"`` at the tightest cap of the next
+        ``v/a_max + 2 period`` seconds, just long enough to brake to rest before a tighter cap
+        starts, so each task is driven at its own cap; ``"ignore"`` plans without print caps (a
+        baseline for studies whose caps are advice, ``[print] enforce = false``; with enforced
+        caps it breaks them).
+    print_first:
+        Stand still while the job's print lasts (``Observation.print_end_s``), then drive: the
+        print-then-deliver strategy.
+    rough_v_max:
+        Drive over the map's rough areas (bumps, rough floor) at most this fast (m/s per axis),
+        planning with them as speed zones: the paper's "varying" strategy. None: no such care.
 
     Raises
     ------
     ValueError
-        If `gain` is not a number in [0, 1].
+        If `gain` is not a number in [0, 1], `speed` or `rough_v_max` not a positive number,
+        `caps` not one of `CAP_MODES` or `print_first` not a boolean.
     """
 
     name = "follower"
 
-    def __init__(self, gain: float = 0.5) -> None:
+    def __init__(
+        self,
+        gain: float = 0.5,
+        speed: float | None = None,
+        caps: str = "window",
+        print_first: bool = False,
+        rough_v_max: float | None = None,
+    ) -> None:
         super().__init__()
+        cls = type(self).__name__
         if (
             isinstance(gain, bool)
             or not isinstance(gain, numbers.Real)
             or not 0.0 <= float(gain) <= 1.0
         ):
             raise ValueError(
-                f"PathFollower option gain = {gain!r}: must be a number in [0, 1] (the fraction "
+                f"{cls} option gain = {gain!r}: must be a number in [0, 1] (the fraction "
                 f"of a position error removed per period; 0 turns the feedback off)"
             )
+        for option, value in (("speed", speed), ("rough_v_max", rough_v_max)):
+            if value is not None and (
+                isinstance(value, bool)
+                or not isinstance(value, numbers.Real)
+                or not 0.0 < float(value) < math.inf
+            ):
+                raise ValueError(
+                    f"{cls} option {option} = {value!r}: must be a positive number (m/s)"
+                )
+        if caps not in CAP_MODES:
+            raise ValueError(f"{cls} option caps = {caps!r}: must be one of {CAP_MODES}")
+        if not isinstance(print_first, bool):
+            raise ValueError(f"{cls} option print_first = {print_first!r}: must be true or false")
         self.gain = float(gain)
+        self.speed = None if speed is None else float(speed)
+        self.caps = caps
+        self.print_first = print_first
+        self.rough_v_max = None if rough_v_max is None else float(rough_v_max)
         self._samples: tuple[list[float], ...] = ([], [], [], [])
         self._plan_steps = 0
         self._plan_stride = 1
@@ -109,7 +157,11 @@ class PathFollower(Controller):
         self._clear()
 
     def __repr__(self) -> str:
-        return f"PathFollower(gain={self.gain!r})"
+        return (
+            f"{type(self).__name__}(gain={self.gain!r}, speed={self.speed!r}, "
+            f"caps={self.caps!r}, print_first={self.print_first!r}, "
+            f"rough_v_max={self.rough_v_max!r})"
+        )
 
     def reset(self, context: ControllerContext) -> None:
         """Keep the context and forget any reference from a previous run."""
@@ -120,6 +172,9 @@ class PathFollower(Controller):
         # to send every tick.
         self._plan_stride = max(1, round(PLAN_SAMPLE / dt))
         self._planners = {}
+        self._floor = context.floor
+        if self.rough_v_max is not None and context.floor.spec.rough_areas:
+            self._floor = _rough_floor(context.floor, self.rough_v_max)
         self._clear()
 
     def _clear(self) -> None:
@@ -135,10 +190,11 @@ class PathFollower(Controller):
         if obs.goal is None:
             self._clear()
             return self._brake(obs, ControlStatus.IDLE)
+        if self.print_first and obs.print_end_s is not None and obs.t < obs.print_end_s:
+            self._ref = None
+            return self._brake(obs, ControlStatus.OK)  # printing standing still
         goal = (float(obs.goal[0]), float(obs.goal[1]))
-        cap = spec.v_max if obs.speed_cap is None else min(spec.v_max, float(obs.speed_cap))
-        for _, _, piece_cap in obs.speed_caps:
-            cap = min(cap, float(piece_cap))
+        cap = self._speed_limit(obs)
         if cap <= REST_SPEED:
             self._ref = None
             return self._brake(obs, ControlStatus.OK)
@@ -214,6 +270,23 @@ class PathFollower(Controller):
         return Command(ax, ay, status, tuple(plan))
 
     # -- helpers --------------------------------------------------------------------------------
+    def _speed_limit(self, obs: Observation) -> float:
+        """The speed (m/s per axis) to plan at, from the robot, `speed` and the print caps."""
+        spec = self.context.spec
+        pace = spec.v_max if self.speed is None else min(spec.v_max, self.speed)
+        if self.caps == "ignore":
+            return pace
+        cap = pace if obs.speed_cap is None else min(pace, float(obs.speed_cap))
+        # "ahead": long enough to brake to rest from the fastest the robot can be going before
+        # a tighter cap starts (pace/a_max rounded up to whole periods; the velocity of the step
+        # in progress is already fixed).
+        ahead = obs.t + pace / spec.a_max + 2.0 * spec.period
+        until = math.inf if self.caps == "window" else ahead
+        for start, _, piece_cap in obs.speed_caps:
+            if start < until:
+                cap = min(cap, float(piece_cap))
+        return cap
+
     def _off_track(self, obs: Observation) -> bool:
         assert self._ref is not None
         k = self._ref.index(obs.t)
@@ -223,10 +296,61 @@ class PathFollower(Controller):
     def _planner(self, cap: float) -> PathPlanner:
         """The context's planner, or one for a robot capped at `cap` m/s (built once per cap)."""
         spec = self.context.spec
-        if cap >= spec.v_max:
+        if cap >= spec.v_max and self._floor is self.context.floor:
             return self.context.planner
+        cap = min(cap, spec.v_max)
         if cap not in self._planners:
             from fleet.paths import PathPlanner  # only speed caps need a planner of our own
 
-            self._planners[cap] = PathPlanner(self.context.floor, v_max=cap, a_max=spec.a_max)
+            self._planners[cap] = PathPlanner(self._floor, v_max=cap, a_max=spec.a_max)
         return self._planners[cap]
+
+
+# Floors with slow rough areas, shared by every robot of a run: (floor, v) -> floor.
+_ROUGH_FLOORS: dict[tuple[int, float], tuple[Floor, Floor]] = {}
+
+
+def _rough_floor(floor: Floor, v_max: float) -> Floor:
+    key = (id(floor), v_max)
+    if key not in _ROUGH_FLOORS or _ROUGH_FLOORS[key][0] is not floor:
+        from fleet.floor import slow_on_rough
+
+        _ROUGH_FLOORS.clear()  # one run's floor at a time: no growth over a long study
+        _ROUGH_FLOORS[key] = (floor, slow_on_rough(floor.spec, v_max))
+    return _ROUGH_FLOORS[key][1]
+
+
+class FixedSpeed(PathFollower):
+    """Print while driving at one fixed speed, whatever prints: the follower with a `speed`
+    (required) and print caps ignored (``caps = "ignore"``). A baseline for throughput studies
+    that judge parts by quality (``[print] enforce = false``)."""
+
+    name = "fixed_speed"
+
+    def __init__(self, speed: float, gain: float = 0.5, caps: str = "ignore") -> None:
+        super().__init__(gain=gain, speed=speed, caps=caps)
+
+
+class QSPSpeed(PathFollower):
+    """Rule-based quality-speed controller: drive each print task at its own cap (the follower
+    with ``caps = "ahead"``) and cross rough floor at `rough_v_max` (default 0.2 m/s, the
+    paper's speed over bumps; its vibration profile gives a 0.007 mm jolt there). With
+    ``[print] caps = "quality"`` the caps are the QSP's fastest speeds within each kind's
+    tolerance."""
+
+    name = "qsp_speed"
+
+    def __init__(
+        self, gain: float = 0.5, speed: float | None = None, rough_v_max: float | None = 0.2
+    ) -> None:
+        super().__init__(gain=gain, speed=speed, caps="ahead", rough_v_max=rough_v_max)
+
+
+class PrintFirst(PathFollower):
+    """Print-then-deliver: print standing where the job was given (at the depot, for a robot
+    that returns home), then drive at full speed (the follower with ``print_first = true``)."""
+
+    name = "print_first"
+
+    def __init__(self, gain: float = 0.5, speed: float | None = None) -> None:
+        super().__init__(gain=gain, speed=speed, print_first=True)
