@@ -1,16 +1,19 @@
 """Figures of a finished run, drawn from its run directory (never by re-running anything).
 
-The two figures of the MAMbot paper, for any scenario:
+The two figures of the MAMbot paper, for any scenario, and a Gantt chart of the prints:
 
 - ``trajectory.png``: the floor (speed zones shaded by their limit, machines, stations) with
   each robot's path over it;
 - ``speed.png``: each robot's vx and vy against time with the limit in force at every step,
-  ``min(zone limit, print cap)``, and its print tasks shaded by kind.
+  ``min(zone limit, print cap)``, and its print tasks shaded by kind;
+- ``gantt.png``: one row per robot, its print tasks as bars coloured by kind, the time each
+  job was in hand and when it was delivered.
 
 Everything is drawn on `matplotlib.figure.Figure` objects with an Agg canvas, never pyplot: no
 display is needed and no global figure state leaks between callers (the CLI, tests, notebooks).
-The readers (`load_run`, `load_tracks`, `load_caps`) and the drawing helpers (`plot_floor`,
-`KIND_COLOURS`) are public so further figures (e.g. a Gantt chart of print tasks) share them.
+The readers (`load_run`, `load_tracks`, `load_caps`, `load_tasks`, `load_events`, `load_jobs`)
+and the drawing helpers (`plot_floor`, `zone_colours`, `KIND_COLOURS`) are public so further
+views (`fleet.replay`) share them.
 
 Semantics of a step, as in the engine and `fleet.safety`: the velocity ``v[k]`` is held over
 ``[t_k, t_{k+1})``; the step's zone limit is ``min(v_zone[k], v_zone[k+1])`` (a step that
@@ -33,9 +36,10 @@ import shapely
 from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from matplotlib.patches import Patch, PathPatch
+from matplotlib.patches import Patch, PathPatch, Rectangle
 from matplotlib.path import Path as MplPath
 from shapely.geometry.base import BaseGeometry
 
@@ -45,23 +49,34 @@ from fleet.floor import Floor, load_floor
 __all__ = [
     "Track",
     "PrintCap",
+    "TaskSpan",
+    "RunEvent",
+    "JobRow",
     "RunData",
     "KIND_COLOURS",
     "TRAJECTORY_PNG",
     "SPEED_PNG",
+    "GANTT_PNG",
     "load_tracks",
     "load_caps",
+    "load_tasks",
+    "load_events",
+    "load_jobs",
     "load_run",
     "step_limits",
+    "zone_colours",
+    "zone_label",
     "plot_floor",
     "trajectory_figure",
     "speed_figure",
+    "gantt_figure",
     "save_run_figures",
 ]
 
 #: File names `save_run_figures` writes into the run directory.
 TRAJECTORY_PNG = "trajectory.png"
 SPEED_PNG = "speed.png"
+GANTT_PNG = "gantt.png"
 
 #: One colour per print-task kind, shared by every figure that shows print tasks.
 KIND_COLOURS: Mapping[str, str] = {
@@ -74,6 +89,9 @@ KIND_COLOURS: Mapping[str, str] = {
 
 _TRACK_COLUMNS = ("t", "robot", "x", "y", "vx", "vy", "region", "v_zone")
 _CAP_COLUMNS = ("robot", "job", "kind", "start_s", "end_s", "cap")
+_TASK_COLUMNS = ("robot", "job", "kind", "start_s", "end_s")
+_EVENT_COLUMNS = ("t", "event", "job", "robot", "station")
+_JOB_COLUMNS = ("id", "robot", "released_s", "started_s", "finished_s", "delivered_s")
 _OBSTACLE_COLOUR = "#6b0f0f"
 _CLEARANCE_COLOUR = "#cfcfcf"
 _DPI = 150
@@ -126,15 +144,68 @@ class PrintCap:
     cap: float
 
 
+@dataclass(frozen=True)
+class TaskSpan:
+    """One print task of one robot on the clock (absolute seconds), capped or not."""
+
+    robot: str
+    job: str
+    kind: str
+    start_s: float
+    end_s: float
+
+
+@dataclass(frozen=True)
+class RunEvent:
+    """One row of ``events.csv``: what happened to `job` at `t` (empty strings: not known)."""
+
+    t: float
+    event: str
+    job: str
+    robot: str
+    station: str
+
+
+@dataclass(frozen=True)
+class JobRow:
+    """One row of ``jobs.csv``; None where the run left the cell empty (not happened)."""
+
+    id: str
+    robot: str | None
+    released_s: float | None
+    started_s: float | None
+    finished_s: float | None
+    delivered_s: float | None
+    part: str | None = None
+    due_s: float | None = None
+    outcome: str | None = None
+    passed: bool | None = None
+    predicted_error_mm: float | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class RunData:
-    """Everything the figures need from one run directory."""
+    """Everything the figures need from one run directory.
+
+    `tasks`, `events` and `jobs` are empty when the run directory lacks their files.
+    """
 
     run_dir: Path
     summary: dict[str, Any]
     floor: Floor
     tracks: dict[str, Track]
     caps: tuple[PrintCap, ...]
+    tasks: tuple[TaskSpan, ...] = ()
+    events: tuple[RunEvent, ...] = ()
+    jobs: tuple[JobRow, ...] = ()
+
+    @property
+    def t_end(self) -> float:
+        """The run's end (s): ``sim_time_s`` from the summary, else the last sample's time."""
+        end = self.summary.get("sim_time_s")
+        if isinstance(end, int | float) and math.isfinite(end) and end > 0:
+            return float(end)
+        return max((float(tr.t[-1]) for tr in self.tracks.values() if len(tr.t)), default=0.0)
 
     @property
     def title(self) -> str:
@@ -206,8 +277,121 @@ def load_caps(path: Path) -> tuple[PrintCap, ...]:
     return tuple(sorted(caps, key=lambda c: (c.robot, c.start_s)))
 
 
+def load_tasks(run_dir: Path) -> tuple[TaskSpan, ...]:
+    """Every print task of a run directory, sorted by robot then start.
+
+    Read from ``tasks.csv`` (every task, capped or not) when it holds rows, else from
+    ``caps.csv`` (only the tasks of capped kinds: what runs written before ``tasks.csv``
+    existed recorded); no file means no tasks.
+
+    Raises
+    ------
+    InputError
+        A column is missing, a time is not a number, or a task ends before it starts.
+    """
+    run_dir = Path(run_dir)
+    path = run_dir / "tasks.csv"
+    tasks = []
+    if path.is_file():
+        for line, row in _read_csv(path, _TASK_COLUMNS):
+            start = _number(path, line, "start_s", row["start_s"])
+            end = _number(path, line, "end_s", row["end_s"])
+            if not end > start:
+                raise InputError(
+                    str(path),
+                    f"line {line}, end_s",
+                    row["end_s"],
+                    f"must be after start_s {start:g}",
+                )
+            tasks.append(TaskSpan(row["robot"], row["job"], row["kind"], start, end))
+    if not tasks:
+        tasks = [
+            TaskSpan(c.robot, c.job, c.kind, c.start_s, c.end_s)
+            for c in load_caps(run_dir / "caps.csv")
+        ]
+    return tuple(sorted(tasks, key=lambda k: (k.robot, k.start_s)))
+
+
+def load_events(path: Path) -> tuple[RunEvent, ...]:
+    """Read ``events.csv`` in time order (stable: same-time events keep the file's order).
+
+    An absent file means no events.
+
+    Raises
+    ------
+    InputError
+        A column is missing or a time is not a number.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return ()
+    events = [
+        RunEvent(
+            _number(path, line, "t", row["t"]),
+            row["event"],
+            row["job"],
+            row["robot"] or "",
+            row["station"] or "",
+        )
+        for line, row in _read_csv(path, _EVENT_COLUMNS)
+    ]
+    return tuple(sorted(events, key=lambda e: e.t))
+
+
+def load_jobs(path: Path) -> tuple[JobRow, ...]:
+    """Read ``jobs.csv``, in the file's order; an absent file means no jobs.
+
+    Empty cells become None; ``part``, ``due_s``, ``outcome``, ``passed`` and
+    ``predicted_error_mm`` may be missing as columns (None then).
+
+    Raises
+    ------
+    InputError
+        A required column is missing, a time is not a number, or ``passed`` is not
+        ``true``/``false``/empty.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return ()
+
+    def number(line: int, row: dict[str, str], column: str) -> float | None:
+        text = row.get(column) or ""
+        return None if text.strip() == "" else _number(path, line, column, text)
+
+    def text(row: dict[str, str], column: str) -> str | None:
+        return row.get(column) or None
+
+    jobs = []
+    for line, row in _read_csv(path, _JOB_COLUMNS):
+        passed_text = (row.get("passed") or "").strip().lower()
+        if passed_text not in ("", "true", "false"):
+            raise InputError(
+                str(path), f"line {line}, passed", row["passed"], "must be true, false or empty"
+            )
+        jobs.append(
+            JobRow(
+                id=row["id"],
+                robot=text(row, "robot"),
+                released_s=number(line, row, "released_s"),
+                started_s=number(line, row, "started_s"),
+                finished_s=number(line, row, "finished_s"),
+                delivered_s=number(line, row, "delivered_s"),
+                part=text(row, "part"),
+                due_s=number(line, row, "due_s"),
+                outcome=text(row, "outcome"),
+                passed=None if passed_text == "" else passed_text == "true",
+                predicted_error_mm=number(line, row, "predicted_error_mm"),
+            )
+        )
+    return tuple(jobs)
+
+
 def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
-    """Read a run directory written by `fleet run` (summary, trajectories, optional caps).
+    """Read a run directory written by `fleet run`.
+
+    ``trajectories.csv`` is required; ``caps.csv``, ``tasks.csv``, ``events.csv`` and
+    ``jobs.csv`` are read when present (see `load_caps`, `load_tasks`, `load_events`,
+    `load_jobs`).
 
     Parameters
     ----------
@@ -250,8 +434,16 @@ def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
                 str(summary_path), "map", map_file, "must be the path of the run's map file"
             )
         floor = load_floor(map_file)
-    caps = load_caps(run_dir / "caps.csv")
-    return RunData(run_dir, summary, floor, tracks, caps)
+    return RunData(
+        run_dir,
+        summary,
+        floor,
+        tracks,
+        load_caps(run_dir / "caps.csv"),
+        load_tasks(run_dir),
+        load_events(run_dir / "events.csv"),
+        load_jobs(run_dir / "jobs.csv"),
+    )
 
 
 def _read_csv(path: Path, columns: Sequence[str]) -> list[tuple[int, dict[str, str]]]:
@@ -310,6 +502,33 @@ def step_limits(track: Track, caps: Iterable[PrintCap] = ()) -> np.ndarray:
 
 
 # -- drawing ----------------------------------------------------------------------------------
+def zone_colours(floor: Floor) -> dict[tuple[float, float], str]:
+    """The colour (``#rrggbb``) of each speed limit of `floor`'s regions, slowest first.
+
+    The floor's default limit is white; slower (or otherwise different) limits get colours of
+    one sequential map, the slowest darkest, stopping short of the red that marks obstacles.
+    Every picture of a floor (`plot_floor`, the HTML replay) uses this one scale.
+    """
+    default = tuple(floor.spec.default_v_max)
+    limits = sorted({r.v_max for r in floor.regions}, key=lambda v: (min(v), max(v)))
+    shaded = [v for v in limits if v != default]
+    cmap = colormaps["YlOrRd"]
+    colours = {}
+    for limit in limits:
+        if limit == default:
+            colours[limit] = "#ffffff"
+            continue
+        rank = shaded.index(limit)
+        level = 0.55 - 0.4 * rank / max(1, len(shaded) - 1) if len(shaded) > 1 else 0.4
+        colours[limit] = to_hex(cmap(level))
+    return colours
+
+
+def zone_label(limit: tuple[float, float]) -> str:
+    """How figures name a zone's per-axis limit: ``"0.4 m/s"`` or ``"0.4 x 0.8 m/s"``."""
+    return _limit_label(limit)
+
+
 def plot_floor(ax: Axes, floor: Floor, *, labels: bool = True) -> list[Any]:
     """Draw `floor` on `ax`: zones shaded by limit, obstacles, boundary, rough areas, stations.
 
@@ -343,13 +562,9 @@ def plot_floor(ax: Axes, floor: Floor, *, labels: bool = True) -> list[Any]:
     for r in floor.regions:
         by_limit.setdefault(r.v_max, []).append(r.polygon)
     default = tuple(spec.default_v_max)
-    limits = sorted(by_limit, key=lambda v: (min(v), max(v)))
-    shaded = [v for v in limits if v != default]
-    cmap = colormaps["YlOrRd"]
-    for rank, limit in enumerate(shaded):
-        # Slowest limit darkest; the range stops short of red, which marks obstacles.
-        level = 0.55 - 0.4 * rank / max(1, len(shaded) - 1) if len(shaded) > 1 else 0.4
-        colour = cmap(level)
+    colours = zone_colours(floor)
+    for limit in (v for v in colours if v != default):
+        colour = colours[limit]
         ax.add_patch(
             _patch(shapely.union_all(by_limit[limit]), facecolor=colour, edgecolor="none", zorder=1)
         )
@@ -554,23 +769,191 @@ def speed_figure(
     return fig
 
 
+def gantt_figure(
+    tasks: Sequence[TaskSpan],
+    events: Sequence[RunEvent] = (),
+    jobs: Sequence[JobRow] = (),
+    *,
+    robots: Sequence[str] | None = None,
+    t_end: float | None = None,
+    title: str | None = None,
+) -> Figure:
+    """A Gantt chart of the prints: one row per robot, its print tasks as bars over time.
+
+    Each task is a bar coloured by `KIND_COLOURS`; behind the bars a thin grey band shows
+    each job from its assignment to its delivery (``assigned`` and ``delivered`` events; to
+    the end when not delivered); a black triangle marks each delivery. A job's id is written
+    over its print (first task's start to last task's end) when it fits there, in red when
+    ``jobs.csv`` judged the part anything but good.
+
+    Parameters
+    ----------
+    tasks:
+        The print tasks (`load_tasks`).
+    events:
+        The run's events (`load_events`): assignments and deliveries.
+    jobs:
+        The run's jobs (`load_jobs`): outcomes for the label colour.
+    robots:
+        The rows, top to bottom; None: every robot named in `tasks` or `events`, in id order.
+        Tasks of robots not listed are left out.
+    t_end:
+        Right end of the time axis (s); None: the last time in the data.
+    title:
+        Figure title.
+
+    Returns
+    -------
+    Figure
+        One axes, robot ids as y tick labels (row i at y = i, the first robot on top). Task bars
+        are `Rectangle` patches with gid ``"task:<robot>:<job>:<kind>"``, job bands
+        ``"held:<job>"``, job labels are texts with gid ``"label:<job>"`` (hidden when they do
+        not fit), deliveries one `Line2D` with gid ``"delivered"`` (x: times, y: rows).
+    """
+    if robots is None:
+        named = {t.robot for t in tasks} | {e.robot for e in events if e.robot}
+        robots = sorted(named)
+    rows = {rid: i for i, rid in enumerate(robots)}
+    fig = _figure((10.0, 1.6 + 0.45 * max(2, len(rows))))
+    ax = fig.add_subplot()
+    ax.set_ylim(len(rows) - 0.5, -0.5)  # first robot on top
+    ax.set_yticks(range(len(rows)), list(rows))
+    ax.set_xlabel("t (s)")
+    if title:
+        fig.suptitle(title)
+
+    shown = [t for t in tasks if t.robot in rows]
+    held_from: dict[str, tuple[str, float]] = {}
+    delivered: dict[str, tuple[str, float]] = {}
+    for e in events:
+        if e.event == "assigned" and e.robot in rows:
+            held_from[e.job] = (e.robot, e.t)
+        elif e.event == "delivered":
+            robot = e.robot or held_from.get(e.job, ("", 0.0))[0]
+            if robot in rows:
+                delivered[e.job] = (robot, e.t)
+    times = [t.end_s for t in shown] + [e.t for e in events]
+    end = t_end if t_end is not None else max(times, default=1.0)
+
+    handles: list[Any] = []
+    for job, (robot, start) in held_from.items():
+        stop = delivered[job][1] if job in delivered else end
+        ax.add_patch(
+            Rectangle(
+                (start, rows[robot] - 0.12),
+                max(stop - start, 0.0),
+                0.24,
+                facecolor="0.8",
+                edgecolor="none",
+                zorder=1,
+                gid=f"held:{job}",
+            )
+        )
+    if held_from:
+        handles.append(Patch(facecolor="0.8", label="job in hand (assigned to delivered)"))
+
+    kinds_seen: set[str] = set()
+    for t in shown:
+        colour = KIND_COLOURS.get(t.kind, KIND_COLOURS["other"])
+        kinds_seen.add(t.kind if t.kind in KIND_COLOURS else "other")
+        ax.add_patch(
+            Rectangle(
+                (t.start_s, rows[t.robot] - 0.35),
+                t.end_s - t.start_s,
+                0.7,
+                facecolor=colour,
+                edgecolor="white",
+                lw=0.4,
+                zorder=2,
+                gid=f"task:{t.robot}:{t.job}:{t.kind}",
+            )
+        )
+    handles += [
+        Patch(facecolor=colour, label=f"print: {kind}")
+        for kind, colour in KIND_COLOURS.items()
+        if kind in kinds_seen
+    ]
+
+    bad = {j.id for j in jobs if j.outcome not in (None, "good")}
+    spans: dict[tuple[str, str], tuple[float, float]] = {}
+    for t in shown:
+        a, b = spans.get((t.robot, t.job), (t.start_s, t.end_s))
+        spans[(t.robot, t.job)] = (min(a, t.start_s), max(b, t.end_s))
+    labels = []
+    for (robot, job), (a, b) in spans.items():
+        text = ax.text(
+            (a + b) / 2,
+            rows[robot],
+            job,
+            ha="center",
+            va="center",
+            fontsize=7,
+            color="#b00000" if job in bad else "black",
+            zorder=4,
+            gid=f"label:{job}",
+            clip_on=True,
+            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7},
+        )
+        labels.append((text, a, b))
+
+    if delivered:
+        xs = [t for _, t in delivered.values()]
+        ys = [rows[r] - 0.42 for r, _ in delivered.values()]
+        order = np.argsort(xs, kind="stable")
+        ax.plot(
+            np.asarray(xs)[order],
+            np.asarray(ys)[order],
+            ls="none",
+            marker="v",
+            ms=6,
+            mfc="black",
+            mec="white",
+            mew=0.5,
+            zorder=5,
+            gid="delivered",
+        )
+        handles.append(
+            Line2D([], [], ls="none", marker="v", mfc="black", mec="white", label="delivered")
+        )
+    ax.set_xlim(0.0, max(end, 1e-9))
+    ax.grid(axis="x", color="0.9", lw=0.5, zorder=0)
+    ax.set_axisbelow(True)
+    if not shown and not held_from:
+        ax.text(0.5, 0.5, "no print tasks", transform=ax.transAxes, ha="center", va="center")
+    if handles:
+        fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8)
+
+    if labels:
+        # Whether a label fits is a question of pixels: lay the figure out, then measure.
+        fig.draw_without_rendering()
+        renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+        for text, a, b in labels:
+            x0, x1 = ax.transData.transform([(a, 0.0), (b, 0.0)])[:, 0]
+            text.set_visible(text.get_window_extent(renderer).width + 4.0 <= x1 - x0)
+    return fig
+
+
 def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int = 6) -> list[Path]:
-    """Write ``trajectory.png`` and ``speed.png`` into `run_dir` from the files there.
+    """Write ``trajectory.png``, ``speed.png`` and ``gantt.png`` into `run_dir`.
+
+    Everything is read from the files there; nothing is re-run.
 
     Parameters
     ----------
     run_dir:
-        A run directory written by `fleet run` (``trajectories.csv`` required, ``caps.csv``
-        optional, ``summary.json`` required when `floor` is None).
+        A run directory written by `fleet run` (``trajectories.csv`` required; ``caps.csv``,
+        ``tasks.csv``, ``events.csv``, ``jobs.csv`` optional; ``summary.json`` required when
+        `floor` is None).
     floor:
         The run's floor; None loads the map named in ``summary.json``.
     robots:
-        At most this many robots get their own colour and their own speed panel.
+        At most this many robots get their own colour and their own speed panel (the Gantt
+        chart has a row for every robot).
 
     Returns
     -------
     list of Path
-        The two PNG files, trajectory first.
+        The three PNG files: trajectory, speed, Gantt.
 
     Raises
     ------
@@ -578,10 +961,18 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
         See `load_run`.
     """
     run = load_run(Path(run_dir), floor)
-    out = [run.run_dir / TRAJECTORY_PNG, run.run_dir / SPEED_PNG]
+    out = [run.run_dir / TRAJECTORY_PNG, run.run_dir / SPEED_PNG, run.run_dir / GANTT_PNG]
     figures = [
         trajectory_figure(run.floor, run.tracks, robots=robots, title=run.title),
         speed_figure(run.tracks, run.caps, robots=robots, title=run.title),
+        gantt_figure(
+            run.tasks,
+            run.events,
+            run.jobs,
+            robots=list(run.tracks),
+            t_end=run.t_end,
+            title=run.title,
+        ),
     ]
     for fig, path in zip(figures, out, strict=True):
         fig.savefig(path, dpi=_DPI)

@@ -1,21 +1,30 @@
 """Run figures: drawn from a real run directory, with the limit line the paper's figure shows."""
 
+import os
 import shutil
 import struct
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.colors import to_hex
 
 from fleet.engine import World
 from fleet.errors import InputError
 from fleet.floor import load_floor
 from fleet.plots import (
+    KIND_COLOURS,
     PrintCap,
+    TaskSpan,
     Track,
+    gantt_figure,
     load_caps,
+    load_jobs,
     load_run,
+    load_tasks,
     save_run_figures,
     speed_figure,
     step_limits,
@@ -25,6 +34,7 @@ from fleet.scenario import JobsConfig, ScriptedJob, default_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 CAPS_HEADER = "robot,job,kind,start_s,end_s,cap\n"
+TASKS_HEADER = "robot,job,kind,start_s,end_s\n"
 
 
 @pytest.fixture(scope="module")
@@ -61,9 +71,9 @@ def line(ax, gid: str):
     return found
 
 
-def test_save_run_figures_writes_both_pngs_loading_the_map_named_in_the_summary(run_dir):
+def test_save_run_figures_writes_all_pngs_loading_the_map_named_in_the_summary(run_dir):
     paths = save_run_figures(run_dir)
-    assert paths == [run_dir / "trajectory.png", run_dir / "speed.png"]
+    assert paths == [run_dir / "trajectory.png", run_dir / "speed.png", run_dir / "gantt.png"]
     for path in paths:
         width, height = png_size(path)
         assert width >= 800 and height >= 400
@@ -198,3 +208,115 @@ def test_step_limits_bind_a_step_by_both_zones_and_by_caps_overlapping_it():
     ]
     np.testing.assert_array_equal(step_limits(track, caps), [0.4, 0.4, 0.5, 0.3])
     assert step_limits(make_track([0.0], [1.0])).shape == (0,)
+
+
+# -- the Gantt chart --------------------------------------------------------------------------
+def bars(ax) -> dict[str, object]:
+    return {p.get_gid(): p for p in ax.patches if (p.get_gid() or "").startswith("task:")}
+
+
+def test_gantt_draws_each_task_in_its_robots_row_in_its_kinds_colour(run_dir):
+    (run_dir / "tasks.csv").write_text(
+        TASKS_HEADER
+        + "r01,j00001,contour,0.5,9.5\n"
+        + "r01,j00001,travel,9.5,10\n"
+        + "r02,j00002,infill,2,2.2\n"
+    )
+    run = load_run(run_dir)
+    fig = gantt_figure(run.tasks, run.events, run.jobs, robots=list(run.tracks), t_end=60.0)
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["r01", "r02", "r03"]
+    drawn = bars(ax)
+    assert set(drawn) == {
+        "task:r01:j00001:contour",
+        "task:r01:j00001:travel",
+        "task:r02:j00002:infill",
+    }
+    contour = drawn["task:r01:j00001:contour"]
+    assert (contour.get_x(), contour.get_width()) == pytest.approx((0.5, 9.0))
+    assert contour.get_y() + contour.get_height() / 2 == pytest.approx(0.0)  # row of r01
+    infill = drawn["task:r02:j00002:infill"]
+    assert infill.get_y() + infill.get_height() / 2 == pytest.approx(1.0)  # row of r02
+    assert to_hex(infill.get_facecolor()) == KIND_COLOURS["infill"]
+    assert ax.get_xlim() == (0.0, 60.0)
+    legend = [x.get_text() for x in fig.legends[0].get_texts()]
+    assert {"print: contour", "print: travel", "print: infill", "delivered"} <= set(legend)
+    assert "print: support" not in legend
+
+
+def test_gantt_labels_jobs_only_where_they_fit(run_dir):
+    (run_dir / "tasks.csv").write_text(
+        TASKS_HEADER + "r01,j00001,contour,0,50\nr02,j00002,infill,2,2.3\n"
+    )
+    run = load_run(run_dir)
+    ax = gantt_figure(run.tasks, run.events, robots=list(run.tracks), t_end=60.0).axes[0]
+    labels = {t.get_gid(): t for t in ax.texts if (t.get_gid() or "").startswith("label:")}
+    assert labels["label:j00001"].get_visible() and labels["label:j00001"].get_text() == "j00001"
+    assert not labels["label:j00002"].get_visible()  # 0.3 s of a 60 s axis: no room
+
+
+def test_gantt_marks_deliveries_and_the_time_each_job_was_in_hand(run_dir):
+    run = load_run(run_dir)
+    delivered = {e.job: e.t for e in run.events if e.event == "delivered"}
+    assigned = {e.job: e.t for e in run.events if e.event == "assigned"}
+    assert delivered, "the fixture's jobs are delivered"
+    ax = gantt_figure(run.tasks, run.events, robots=list(run.tracks)).axes[0]
+    (marks,) = [ln for ln in ax.get_lines() if ln.get_gid() == "delivered"]
+    assert sorted(marks.get_xdata()) == sorted(delivered.values())
+    held = {p.get_gid(): p for p in ax.patches if (p.get_gid() or "").startswith("held:")}
+    for job, t in delivered.items():
+        band = held[f"held:{job}"]
+        assert (band.get_x(), band.get_x() + band.get_width()) == pytest.approx((assigned[job], t))
+
+
+def test_defective_parts_get_red_labels(run_dir):
+    (run_dir / "tasks.csv").write_text(TASKS_HEADER + "r01,j00001,contour,0,50\n")
+    (run_dir / "jobs.csv").write_text(
+        "id,robot,released_s,started_s,finished_s,delivered_s,outcome,passed\n"
+        "j00001,r01,0,0,50,50,defective,false\n"
+    )
+    run = load_run(run_dir)
+    assert run.jobs[0].passed is False and run.jobs[0].outcome == "defective"
+    ax = gantt_figure(run.tasks, run.events, run.jobs).axes[0]
+    (label,) = [t for t in ax.texts if t.get_gid() == "label:j00001"]
+    assert to_hex(label.get_color()) == "#b00000"
+
+
+def test_tasks_come_from_tasks_csv_else_from_caps_csv(run_dir):
+    assert load_tasks(run_dir) == ()
+    (run_dir / "caps.csv").write_text(CAPS_HEADER + "r01,j1,contour,10,20,0.3\n")
+    from_caps = (TaskSpan("r01", "j1", "contour", 10.0, 20.0),)
+    assert load_tasks(run_dir) == from_caps
+    (run_dir / "tasks.csv").write_text(TASKS_HEADER)  # a header only: nothing recorded there
+    assert load_tasks(run_dir) == from_caps
+    (run_dir / "tasks.csv").write_text(TASKS_HEADER + "r01,j1,travel,20,25\nr01,j1,contour,10,20\n")
+    assert [t.kind for t in load_tasks(run_dir)] == ["contour", "travel"]  # by start
+    (run_dir / "tasks.csv").write_text(TASKS_HEADER + "r01,j1,travel,25,20\n")
+    with pytest.raises(InputError, match=r"tasks\.csv: line 2, end_s = '20': must be after"):
+        load_tasks(run_dir)
+
+
+def test_a_bad_jobs_file_names_line_and_value(run_dir):
+    path = run_dir / "jobs.csv"
+    path.write_text("id,robot,released_s,started_s,finished_s,delivered_s,outcome\nj1,r01,0,,,x,\n")
+    with pytest.raises(InputError, match=r"jobs\.csv: line 2, delivered_s = 'x': must be a number"):
+        load_jobs(path)
+
+
+def test_figures_are_drawn_without_a_display_or_pyplot(run_dir):
+    # A GUI backend and no display: any use of pyplot would fail or show in sys.modules.
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["MPLBACKEND"] = "TkAgg"
+    code = (
+        "import sys; from fleet.plots import save_run_figures; "
+        f"paths = save_run_figures({str(run_dir)!r}); "
+        "assert 'matplotlib.pyplot' not in sys.modules, 'pyplot was imported'; "
+        "print(*(p.name for p in paths))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["trajectory.png", "speed.png", "gantt.png"]
+    width, height = png_size(run_dir / "gantt.png")
+    assert width >= 800 and height >= 300
