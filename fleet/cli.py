@@ -1,4 +1,5 @@
-"""The `fleet` command line: run scenarios, list plugins, inspect floor maps and G-code files."""
+"""The `fleet` command line: run scenarios and studies, draw and replay runs, list plugins,
+inspect floor maps and G-code files."""
 
 from __future__ import annotations
 
@@ -58,6 +59,48 @@ def _parser() -> argparse.ArgumentParser:
         "of a few robots)",
     )
     run.set_defaults(handler=_cmd_run)
+
+    sweep = sub.add_parser(
+        "sweep", help="run a study: a grid of scenario values over seeds, cells in parallel"
+    )
+    sweep.add_argument("study", type=Path, help="study TOML (see studies/throughput.toml)")
+    sweep.add_argument(
+        "--out", type=Path, help="study directory (default: runs/<study name>); resumes there"
+    )
+    sweep.add_argument(
+        "--workers", type=int, help="local worker processes (default: one per CPU core)"
+    )
+    sweep.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run the cells on this Dask scheduler instead (pip install 'mambot-fleet[dask]')",
+    )
+    sweep.add_argument(
+        "--keep-failed",
+        dest="retry_failed",
+        action="store_false",
+        help="do not run failed cells again when resuming",
+    )
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar or table")
+    sweep.set_defaults(handler=_cmd_sweep)
+
+    report = sub.add_parser(
+        "report", help="plot a study's results and write a Markdown summary (report.md)"
+    )
+    report.add_argument("study_dir", type=Path, help="a directory written by `fleet sweep`")
+    report.add_argument("--out", type=Path, help="where to write (default: the study directory)")
+    report.set_defaults(handler=_cmd_report)
+
+    plot = sub.add_parser(
+        "plot", help="draw a run's figures: trajectories, speed against limits, print Gantt"
+    )
+    plot.add_argument("run_dir", type=Path, help="a run directory written by `fleet run`")
+    plot.set_defaults(handler=_cmd_plot)
+
+    replay = sub.add_parser("replay", help="write a self-contained HTML page that animates a run")
+    replay.add_argument("run_dir", type=Path, help="a run directory written by `fleet run`")
+    replay.add_argument("--out", type=Path, help="HTML file (default: RUN_DIR/replay.html)")
+    replay.set_defaults(handler=_cmd_replay)
 
     plugins = sub.add_parser("plugins", help="list the controller and dispatcher plugins found")
     plugins.set_defaults(handler=_cmd_plugins)
@@ -121,14 +164,7 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
         ) as bar:
             task = bar.add_task("run", total=scenario.duration_s, now=0.0)
             result = world.run(lambda now: bar.update(task, completed=now, now=now))
-    world.recorder.write(
-        out,
-        result.summary,
-        world.floor,
-        result.safety.examples,
-        world.cap_rows(),
-        world.job_rows(),
-    )
+    world.write(out)
     if args.figures:
         from fleet.plots import save_run_figures
 
@@ -136,6 +172,87 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     if not args.quiet:
         _kpi_table(console, result.summary)
         console.print(f"run directory: {out}")
+    return 0
+
+
+def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
+    from contextlib import nullcontext
+
+    from fleet.study import dask_executor, load_study, run_study
+
+    study = load_study(args.study)
+    out = args.out or Path("runs") / study.name
+    total = len(study.cells)
+    where = f"Dask scheduler {args.scheduler}" if args.scheduler else "local processes"
+    if not args.quiet:
+        console.print(
+            f"[bold]{escape(study.name)}[/]: {total} cells ({len(study.seeds)} seeds) on "
+            f"{where} into {out}"
+        )
+    executor = dask_executor(args.scheduler) if args.scheduler else nullcontext(None)
+    with (
+        executor as ex,
+        Progress(
+            TextColumn("cells"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total}"),
+            TextColumn("{task.fields[failed]} failed"),
+            TimeElapsedColumn(),
+            console=console,
+            disable=args.quiet,
+        ) as bar,
+    ):
+        task = bar.add_task("sweep", total=total, failed=0)
+        failed = 0
+
+        def progress(record: dict, done: int, _total: int) -> None:
+            nonlocal failed
+            if record.get("status") == "failed":
+                failed += 1
+                bar.console.print(
+                    f"[red]cell {record.get('cell')} failed:[/] {escape(str(record.get('error')))}",
+                    highlight=False,
+                )
+            bar.update(task, completed=done, failed=failed)
+
+        result = run_study(
+            study,
+            out,
+            executor=ex,
+            workers=args.workers,
+            progress=progress,
+            retry_failed=args.retry_failed,
+        )
+    if not args.quiet:
+        console.print(
+            f"{result.ok} ok ({result.skipped} reused from an earlier sweep), {result.failed} "
+            f"failed; results: {result.results_path}; next: fleet report {out}"
+        )
+    return 1 if result.failed else 0
+
+
+def _cmd_report(args: argparse.Namespace, console: Console) -> int:
+    from fleet.report import write_report
+
+    result = write_report(args.study_dir, args.out)
+    for path in result.paths:
+        console.print(f"wrote {path}")
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace, console: Console) -> int:
+    from fleet.plots import save_run_figures
+
+    for path in save_run_figures(args.run_dir):
+        console.print(f"wrote {path}")
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace, console: Console) -> int:
+    from fleet.replay import write_replay
+
+    path = write_replay(args.run_dir, args.out)
+    console.print(f"wrote {path} (open it in a browser; it needs no server or network)")
     return 0
 
 
