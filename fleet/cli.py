@@ -55,8 +55,8 @@ def _parser() -> argparse.ArgumentParser:
         "--no-figures",
         dest="figures",
         action="store_false",
-        help="skip trajectory.png and speed.png (they take about a second per simulated hour "
-        "of a few robots)",
+        help="skip trajectory.png, speed.png and gantt.png (they take about two seconds for an "
+        "hour of a few robots; `fleet plot RUN_DIR` draws them later)",
     )
     run.set_defaults(handler=_cmd_run)
 
@@ -68,7 +68,7 @@ def _parser() -> argparse.ArgumentParser:
         "--out", type=Path, help="study directory (default: runs/<study name>); resumes there"
     )
     sweep.add_argument(
-        "--workers", type=int, help="local worker processes (default: one per CPU core)"
+        "--workers", type=_positive_int, help="local worker processes (default: one per CPU core)"
     )
     sweep.add_argument(
         "--scheduler",
@@ -99,7 +99,9 @@ def _parser() -> argparse.ArgumentParser:
 
     replay = sub.add_parser("replay", help="write a self-contained HTML page that animates a run")
     replay.add_argument("run_dir", type=Path, help="a run directory written by `fleet run`")
-    replay.add_argument("--out", type=Path, help="HTML file (default: RUN_DIR/replay.html)")
+    replay.add_argument(
+        "--out", type=Path, help="HTML file or directory (default: RUN_DIR/replay.html)"
+    )
     replay.set_defaults(handler=_cmd_replay)
 
     plugins = sub.add_parser("plugins", help="list the controller and dispatcher plugins found")
@@ -182,12 +184,16 @@ def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
 
     study = load_study(args.study)
     out = args.out or Path("runs") / study.name
+    if out.exists() and not out.is_dir():
+        raise FleetError(f"--out {out}: is a file; the study needs a directory")
     total = len(study.cells)
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else "local processes"
+    errors = Console(stderr=True, soft_wrap=True)
     if not args.quiet:
         console.print(
             f"[bold]{escape(study.name)}[/]: {total} cells ({len(study.seeds)} seeds) on "
-            f"{where} into {out}"
+            f"{where} into {escape(str(out))}",
+            soft_wrap=True,
         )
     executor = dask_executor(args.scheduler) if args.scheduler else nullcontext(None)
     with (
@@ -209,8 +215,11 @@ def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
             nonlocal failed
             if record.get("status") == "failed":
                 failed += 1
-                bar.console.print(
-                    f"[red]cell {record.get('cell')} failed:[/] {escape(str(record.get('error')))}",
+                params = ", ".join(f"{k}={v}" for k, v in (record.get("params") or {}).items())
+                when = " (kept from an earlier sweep)" if record.get("skipped") else ""
+                errors.print(
+                    f"[red]cell {record.get('cell')} ({escape(params)}, seed "
+                    f"{record.get('seed')}) failed{when}:[/] {escape(str(record.get('error')))}",
                     highlight=False,
                 )
             bar.update(task, completed=done, failed=failed)
@@ -225,8 +234,10 @@ def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
         )
     if not args.quiet:
         console.print(
-            f"{result.ok} ok ({result.skipped} reused from an earlier sweep), {result.failed} "
-            f"failed; results: {result.results_path}; next: fleet report {out}"
+            f"{result.ok} ok, {result.failed} failed ({result.skipped} of these cells reused "
+            f"from an earlier sweep); results: {escape(str(result.results_path))}; "
+            f"next: fleet report {escape(str(out))}",
+            soft_wrap=True,
         )
     return 1 if result.failed else 0
 
@@ -234,9 +245,11 @@ def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
 def _cmd_report(args: argparse.Namespace, console: Console) -> int:
     from fleet.report import write_report
 
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        raise FleetError(f"--out {args.out}: is a file; the report needs a directory")
     result = write_report(args.study_dir, args.out)
     for path in result.paths:
-        console.print(f"wrote {path}")
+        console.print(f"wrote {escape(str(path))}", soft_wrap=True)
     return 0
 
 
@@ -244,16 +257,32 @@ def _cmd_plot(args: argparse.Namespace, console: Console) -> int:
     from fleet.plots import save_run_figures
 
     for path in save_run_figures(args.run_dir):
-        console.print(f"wrote {path}")
+        console.print(f"wrote {escape(str(path))}", soft_wrap=True)
     return 0
 
 
 def _cmd_replay(args: argparse.Namespace, console: Console) -> int:
-    from fleet.replay import write_replay
+    from fleet.replay import REPLAY_HTML, write_replay
 
-    path = write_replay(args.run_dir, args.out)
-    console.print(f"wrote {path} (open it in a browser; it needs no server or network)")
+    out = args.out
+    if out is not None and out.is_dir():
+        out = out / REPLAY_HTML
+    path = write_replay(args.run_dir, out)
+    console.print(
+        f"wrote {escape(str(path))} (open it in a browser; it needs no server or network)",
+        soft_wrap=True,
+    )
     return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 1")
+    return value
 
 
 def _kpi_table(console: Console, s: dict) -> None:
