@@ -466,6 +466,8 @@ def _jobs(run: RunData) -> list[dict[str, Any]]:
         )
 
     for e in run.events:
+        if not e.job:
+            continue  # a robot's own event (an idle turn), no job's
         j = entry(e.job)
         if e.station and j["station"] is None:
             j["station"] = e.station

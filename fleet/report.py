@@ -25,7 +25,7 @@ robots axis there is one panel.
 
 Statistics use the runs whose status is ``"ok"``; failed runs are listed and left out. Intervals
 are two-sided 95 % Student t intervals of the mean across seeds (none for a single seed). A leader
-is *clearly ahead* when its interval lies entirely above the runner-up's; overlapping intervals
+is *clearly ahead* when its interval lies entirely above every other series'; overlapping intervals
 are reported as a tie (an interval of zero width, all seeds equal, compares as its mean). This is
 a conservative test, not a significance test of the difference.
 
@@ -192,7 +192,7 @@ class Verdict(enum.Enum):
     """How the series with the highest mean in one setting compares with the runner-up."""
 
     CLEAR = "clearly ahead"
-    """Its 95 % interval lies entirely above the runner-up's."""
+    """Its 95 % interval lies entirely above every other series'."""
     TIE = "tie"
     """The intervals overlap: the data do not separate the two."""
     EQUAL = "equal means"
@@ -217,6 +217,8 @@ class Ranking:
 def rank(intervals: Mapping[str, Interval]) -> tuple[str, str | None, Verdict]:
     """Leader, runner-up and `Verdict` among series' intervals (equal means: first listed first).
 
+    The leader is `Verdict.CLEAR` when its interval lies above every other series' interval.
+
     Raises
     ------
     ValueError
@@ -232,9 +234,12 @@ def rank(intervals: Mapping[str, Interval]) -> tuple[str, str | None, Verdict]:
     a, b = intervals[leader], intervals[runner]
     if a.mean == b.mean:
         return leader, runner, Verdict.EQUAL
-    if a.half_width is None or b.half_width is None:
+    others = [intervals[s] for s in order[1:]]
+    if a.half_width is None or any(o.half_width is None for o in others):
         return leader, runner, Verdict.NO_INTERVAL
-    return leader, runner, Verdict.CLEAR if a.low > b.high else Verdict.TIE
+    # Clear only above every other series: one with a lower mean but a wide interval may still
+    # be the better one.
+    return leader, runner, Verdict.CLEAR if all(a.low > o.high for o in others) else Verdict.TIE
 
 
 # -- what a study directory holds -------------------------------------------------------------
@@ -1181,13 +1186,14 @@ def _winners(summary: Summary) -> list[str]:
         out.append(f"- {equal} of {n} setting(s) have two series with equal highest means: "
                    "no leader.")  # fmt: skip
     if ties:
-        out.append(f"- {ties} of {n} setting(s) are ties: the leader's interval overlaps the "
-                   "runner-up's.")  # fmt: skip
+        out.append(f"- {ties} of {n} setting(s) are ties: the leader's interval overlaps "
+                   "another series'.")  # fmt: skip
     if unsure:
         out.append(f"- {unsure} of {n} setting(s) have a single seed for the leader or the "
-                   "runner-up: no interval to decide.")  # fmt: skip
+                   "another series: no interval to decide.")  # fmt: skip
     out.append(
-        "- Clearly ahead means the leader's 95 % interval lies entirely above the runner-up's."
+        "- Clearly ahead means the leader's 95 % interval lies entirely above every other "
+        "series' interval."
     )
     return out
 

@@ -57,6 +57,7 @@ import tomllib
 import traceback
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -527,6 +528,15 @@ def _check_plugins(
                 f"no {kind} plugin named {name!r} is registered (available: {known}; "
                 "`fleet plugins` lists them)",
             )
+        # Build it once, so options the plugin rejects fail here and not in every cell.
+        from fleet.errors import PluginError
+        from fleet.plugins import load_controller, load_dispatcher
+
+        loader = load_controller if kind == "controller" else load_dispatcher
+        try:
+            loader(name, getattr(scenario, kind).options)
+        except PluginError as exc:
+            raise StudyError(src, where, value, str(exc)) from None
 
 
 def _cell_id(raw: dict[str, Any], scenario: Any, digests: dict[Path, str]) -> str:
@@ -552,9 +562,10 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     """Run one cell into its run directory and return its record; never raises.
 
     The run directory holds what ``fleet run --no-figures`` writes (summary.json,
-    trajectories.csv, events.csv, jobs.csv, caps.csv, violations.csv), plus ``cell.json`` (the
-    record, written atomically) and, when the cell failed, ``error.txt`` (the traceback). Any
-    exception (bad plugin options at World build, a crash mid-run, a full disk) makes the record
+    trajectories.csv, events.csv, jobs.csv, tasks.csv, caps.csv, plans.csv, violations.csv), plus
+    ``cell.json`` (the record, written atomically) and, when the cell failed, ``error.txt`` (the
+    traceback). Any exception (plugin options that do not suit the robots, a crash mid-run, a
+    full disk) makes the record
     ``status = "failed"`` with ``error = "ExceptionType: message"``.
     """
     from fleet.engine import World
@@ -677,32 +688,24 @@ def run_study(
         if progress is not None:
             progress(records[cell.index], done, total)
 
-    if todo:
-        own = executor is None
-        pool = executor or ProcessPoolExecutor(
-            max_workers=min(workers or os.cpu_count() or 1, len(todo)),
-            mp_context=multiprocessing.get_context("spawn"),
-        )
-        futures: dict[Future, Cell] = {}
-        try:
-            for cell in todo:
-                spec = study.spec(cell, out)
-                try:
-                    futures[pool.submit(run_cell, spec)] = cell
-                except Exception as exc:  # a broken or closed executor, a spec it cannot send
-                    finished(cell, _lost(spec, exc))
-            for future in as_completed(futures):
-                cell = futures[future]
-                try:
-                    record = future.result()
-                except Exception as exc:  # the worker died, or the executor could not run it
-                    record = _lost(study.spec(cell, out), exc)
-                finished(cell, record)
-        finally:
-            for future in futures:
-                future.cancel()
-            if own:
-                pool.shutdown(wait=True, cancel_futures=True)
+    if executor is not None:
+        _run_cells(executor, todo, study, out, finished, own=False)
+    elif todo:
+        size = min(workers or os.cpu_count() or 1, len(todo))
+        # A worker that dies (killed, out of memory) breaks the whole pool and every cell still
+        # in it with BrokenProcessPool, not only its own: run those again in a fresh pool, and
+        # cells that break a second one each alone, so only the culprit is recorded as failed.
+        for attempt, pool_size in enumerate((size, size, 1)):
+            last = attempt == 2
+            if pool_size == 1:
+                broken = []
+                for cell in todo:
+                    broken += _run_cells(_spawn_pool(1), [cell], study, out, finished, last=last)
+            else:
+                broken = _run_cells(_spawn_pool(pool_size), todo, study, out, finished, last=last)
+            if not broken:
+                break
+            todo = broken
 
     ordered = [records[i] for i in sorted(records)]
     ok = sum(1 for r in ordered if r["status"] == CellStatus.OK)
@@ -714,6 +717,56 @@ def run_study(
         skipped=sum(1 for r in ordered if r["skipped"]),
         results_paths=paths,
     )
+
+
+def _spawn_pool(size: int) -> ProcessPoolExecutor:
+    return ProcessPoolExecutor(max_workers=size, mp_context=multiprocessing.get_context("spawn"))
+
+
+def _run_cells(
+    pool: Executor,
+    cells: list[Cell],
+    study: Study,
+    out: Path,
+    finished: Callable[[Cell, dict[str, Any]], None],
+    *,
+    own: bool = True,
+    last: bool = True,
+) -> list[Cell]:
+    """Run `cells` on `pool`, reporting each to `finished`; returns the cells a broken process
+    pool lost (recorded as failed instead when `last`). Shuts down `pool` when `own`."""
+    futures: dict[Future, Cell] = {}
+    broken: list[Cell] = []
+    try:
+        for cell in cells:
+            spec = study.spec(cell, out)
+            try:
+                futures[pool.submit(run_cell, spec)] = cell
+            except BrokenProcessPool as exc:
+                if last:
+                    finished(cell, _lost(spec, exc))
+                else:
+                    broken.append(cell)
+            except Exception as exc:  # a closed executor, a spec it cannot send
+                finished(cell, _lost(spec, exc))
+        for future in as_completed(futures):
+            cell = futures[future]
+            try:
+                record = future.result()
+            except BrokenProcessPool as exc:
+                if not last:
+                    broken.append(cell)
+                    continue
+                record = _lost(study.spec(cell, out), exc)
+            except Exception as exc:  # the executor could not run it
+                record = _lost(study.spec(cell, out), exc)
+            finished(cell, record)
+    finally:
+        for future in futures:
+            future.cancel()
+        if own:
+            pool.shutdown(wait=True, cancel_futures=True)
+    return sorted(broken, key=lambda c: c.index)
 
 
 def _lost(spec: CellSpec, exc: BaseException) -> dict[str, Any]:

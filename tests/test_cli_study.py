@@ -29,9 +29,9 @@ controller = [
 ]
 """
 
-#: The follower takes a gain in [0, 1]: the second cell builds its World and fails.
+#: An MPC horizon shorter than braking suits no robot: the second cell fails building its World.
 FAILING_GRID = """robots = [1]
-controller = ["follower", { label = "bad gain", name = "follower", options = { gain = 5 } }]
+controller = ["follower", { label = "short horizon", name = "mpc", options = { horizon = 3 } }]
 """
 
 
@@ -188,13 +188,15 @@ def test_a_failing_cell_exits_1_prints_its_error_and_the_others_run(tmp_path, ca
     rows = read_rows(out / "results.csv")
     assert [(r["controller"], r["status"]) for r in rows] == [
         ("follower", "ok"),
-        ("bad gain", "failed"),
+        ("short horizon", "failed"),
     ]
     bad = rows[1]["cell"]
     captured = capsys.readouterr()
     text, errors = unwrap(captured.out), unwrap(captured.err)
-    assert f"cell {bad} (robots=1, controller=bad gain, seed 1) failed: PluginError: " in errors
-    assert "gain = 5" in errors and "must be a number in [0, 1]" in errors
+    assert (
+        f"cell {bad} (robots=1, controller=short horizon, seed 1) failed: PluginError: " in errors
+    )
+    assert "horizon 3" in errors and "shorter than braking" in errors
     assert "1 ok, 1 failed (0 of these cells reused from an earlier sweep)" in text
 
     # --keep-failed: the failure stays as recorded, nothing runs again, the exit is still 1.
@@ -205,7 +207,10 @@ def test_a_failing_cell_exits_1_prints_its_error_and_the_others_run(tmp_path, ca
     captured = capsys.readouterr()
     text, errors = unwrap(captured.out), unwrap(captured.err)
     assert "1 ok, 1 failed (2 of these cells reused from an earlier sweep)" in text
-    kept = f"cell {bad} (robots=1, controller=bad gain, seed 1) failed (kept from an earlier sweep)"
+    kept = (
+        f"cell {bad} (robots=1, controller=short horizon, seed 1) failed "
+        "(kept from an earlier sweep)"
+    )
     assert kept in errors
     assert "PluginError" in errors
     assert error_txt.stat().st_mtime_ns == stamp

@@ -224,6 +224,13 @@ def test_rank_says_clear_only_when_the_intervals_do_not_overlap():
     assert rank({"a": a}) == ("a", None, Verdict.ALONE)
 
 
+def test_rank_is_not_clear_while_a_lower_series_interval_reaches_the_leader():
+    # c has the lowest mean but a wide interval: the leader is not clearly ahead of it.
+    a, b, c = Interval(10.0, 1.24, 3), Interval(8.0, 0.25, 3), Interval(7.0, 12.42, 3)
+    assert rank({"a": a, "b": b}) == ("a", "b", Verdict.CLEAR)
+    assert rank({"a": a, "b": b, "c": c}) == ("a", "b", Verdict.TIE)
+
+
 # -- the report of real runs ------------------------------------------------------------------
 def test_writes_three_pngs_and_the_report_into_out_dir(report):
     names = [p.name for p in report.paths]

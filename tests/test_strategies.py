@@ -166,6 +166,9 @@ def test_run_directory_records_print_tasks_and_planned_horizons(tmp_path):
     assert plans and {r["robot"] for r in plans} == {"r01"}
     sent = sorted({float(r["t_sent"]) for r in plans})
     assert min(np.diff(sent)) >= 1.0 - 1e-9  # at most one kept per second
+    for when in sent:
+        times = [float(r["t"]) for r in plans if float(r["t_sent"]) == when]
+        assert len(times) <= 2 or min(np.diff(times[:-1])) >= 0.5 - 1e-9
     # A plan's samples start where it was sent and lie on the robot's later path.
     t, xy, _ = samples(world)
     for row in plans:

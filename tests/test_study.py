@@ -3,7 +3,10 @@ and a clear error for each bad study file."""
 
 import csv
 import json
+import multiprocessing
+import os
 import shutil
+import signal
 import socket
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -213,23 +216,23 @@ def test_a_failing_cell_is_recorded_and_the_others_run(tmp_path):
     path = write_study(
         tmp_path,
         '[study]\nscenario = "base.toml"\nseeds = [1]\nduration_s = 30\n[grid]\n'
-        'controller = ["follower", { label = "bad gain", name = "follower", '
-        "options = { gain = 5 } }]\n",
+        'controller = ["follower", { label = "short horizon", name = "mpc", '
+        "options = { horizon = 3 } }]\n",
     )
     study = load_study(path)  # options are the plugin's to judge: only a run finds them bad
-    assert [c.params["controller"] for c in study.cells] == ["follower", "bad gain"]
+    assert [c.params["controller"] for c in study.cells] == ["follower", "short horizon"]
     result = run_study(study, tmp_path / "out", workers=2)
     assert (result.ok, result.failed) == (1, 1)
     good, bad = result.records
     assert good["status"] == "ok" and bad["status"] == "failed"
-    assert bad["error"].startswith("PluginError: ") and "gain = 5" in bad["error"]
+    assert bad["error"].startswith("PluginError: ") and "horizon 3" in bad["error"]
     assert all(v is None for v in bad["kpis"].values())
     error_txt = result.out_dir / bad["run_dir"] / "error.txt"
     assert "Traceback" in error_txt.read_text() and "PluginError" in error_txt.read_text()
     rows = read_rows(result.results_path)
     assert [(r["controller"], r["status"]) for r in rows] == [
         ("follower", "ok"),
-        ("bad gain", "failed"),
+        ("short horizon", "failed"),
     ]
     assert rows[1]["error"] == bad["error"] and rows[1]["digest"] == ""
     assert rows[0]["digest"] != ""
@@ -285,6 +288,13 @@ def test_no_dask_scheduler_is_a_clear_error():
     [
         ('[study]\nscenario = "base.toml"\nseed = [1]\n', "study.seed", [1], "unknown key"),
         ('[study]\nscenario = "base.toml"\n[grid]\nrobots = []\n', "grid.robots", [], "at least"),
+        (
+            '[study]\nscenario = "base.toml"\n[grid]\n'
+            'controller = ["mpc", { name = "follower", options = { gain = 5 } }]\n',
+            "grid.controller[1]",
+            {"name": "follower", "options": {"gain": 5}},
+            "gain = 5: must be a number in [0, 1]",
+        ),
         (
             '[study]\nscenario = "base.toml"\n[grid]\ncontroller = ["follower", "folower"]\n',
             "grid.controller[1]",
@@ -350,3 +360,21 @@ def test_cells_an_executor_cannot_run_are_recorded_as_failed(tmp_path):
         assert json.loads((cell_dir / "cell.json").read_text())["status"] == "failed"
         assert "RuntimeError" in (cell_dir / "error.txt").read_text()
     assert [r["status"] for r in read_rows(result.results_path)] == ["failed"] * 4
+
+
+def test_a_worker_killed_mid_sweep_costs_no_cell(tmp_path):
+    # A dead worker breaks the whole process pool; the cells it took down with it run again
+    # in a fresh pool instead of being recorded as failed.
+    study = load_study(write_study(tmp_path, TINY))
+    killed = []
+
+    def kill_a_worker(record, done, total):
+        if not killed:
+            victim = multiprocessing.active_children()[0]
+            os.kill(victim.pid, signal.SIGKILL)
+            killed.append(victim.pid)
+
+    result = run_study(study, tmp_path / "out", workers=2, progress=kill_a_worker)
+    assert killed
+    assert (result.ok, result.failed) == (4, 0)
+    assert [r["status"] for r in read_rows(result.results_path)] == ["ok"] * 4

@@ -8,8 +8,8 @@ Output contract (extend it, never break it):
   print_speed, collision}, quality {prints, outcomes {good, defective, failed}, max_error_mm},
   solver {steps, median_ms, p95_ms, max_ms, fallbacks, termination {outcome: count}, ...}
   (solve statistics reported by optimising controllers), per_robot [{id, distance_m,
-  jobs_completed, turned_rad}], digest (sha256 of the trajectories: the same seed gives the
-  same digest); for scripted (point-to-point) runs also arrivals {robot: when it reached the
+  jobs_completed, turned_rad, radius_m}], digest (sha256 of the trajectories: the same seed gives
+  the same digest); for scripted (point-to-point) runs also arrivals {robot: when it reached the
   destination of its last trip, s, or null}.
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
@@ -24,7 +24,7 @@ Output contract (extend it, never break it):
 - ``tasks.csv``: robot, job, kind, start_s, end_s: every print task, capped or not, on the clock.
 - ``plans.csv``: t_sent, robot, k, t, x, y: the planned horizons controllers sent (sample k of
   the plan sent at t_sent; a plan holds until the robot's next), at most one per robot per
-  second.
+  second, samples at least half a second apart.
 - ``violations.csv``: the first violations in full, when there are any.
 """
 
@@ -42,10 +42,12 @@ import numpy as np
 
 from fleet.floor import Floor
 
-__all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S"]
+__all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S", "PLAN_SAMPLE_S"]
 
 #: Shortest time (s) between two planned horizons the recorder keeps for one robot.
 PLAN_RECORD_S = 1.0
+#: Shortest time (s) between two samples of a kept plan (its first and last are always kept).
+PLAN_SAMPLE_S = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,7 +112,15 @@ class Recorder:
         `PLAN_RECORD_S` ago (an MPC sends one every tick; the replay needs about one a second)."""
         if t - self._plan_kept.get(robot, -math.inf) >= PLAN_RECORD_S - 1e-9:
             self._plan_kept[robot] = t
-            self.plans.append((t, robot, samples))
+            # An MPC horizon has a sample per period: a few per second are enough to draw it.
+            kept, last = [samples[0]], samples[0][0]
+            for s in samples[1:-1]:
+                if s[0] - last >= PLAN_SAMPLE_S - 1e-9:
+                    kept.append(s)
+                    last = s[0]
+            if len(samples) > 1:
+                kept.append(samples[-1])
+            self.plans.append((t, robot, tuple(kept)))
 
     def digest(self) -> str:
         """sha256 over every robot's exact samples, robots in name order."""

@@ -723,6 +723,7 @@ class World:
                 "distance_m": round(self.recorder.trajectories[rid].distance(), 6),
                 "jobs_completed": r.jobs_completed,
                 "turned_rad": round(r.turned_rad, 6),
+                "radius_m": r.spec.radius,
             }
             for rid, r in self.robots.items()
         ]
