@@ -58,6 +58,8 @@ __all__ = [
     "SPEED_PNG",
     "GANTT_PNG",
     "load_tracks",
+    "read_csv_rows",
+    "csv_number",
     "load_caps",
     "load_tasks",
     "load_events",
@@ -225,11 +227,11 @@ def load_tracks(path: Path) -> dict[str, Track]:
         The file is missing, lacks a column, or holds a value that is not a number.
     """
     path = Path(path)
-    rows = _read_csv(path, _TRACK_COLUMNS)
+    rows = read_csv_rows(path, _TRACK_COLUMNS)
     by_robot: dict[str, list[list[float]]] = {}
     numeric = ("t", "x", "y", "vx", "vy", "region", "v_zone")
     for line, row in rows:
-        values = [_number(path, line, col, row[col]) for col in numeric]
+        values = [csv_number(path, line, col, row[col]) for col in numeric]
         by_robot.setdefault(row["robot"], []).append(values)
     tracks = {}
     for robot in sorted(by_robot):
@@ -261,10 +263,10 @@ def load_caps(path: Path) -> tuple[PrintCap, ...]:
     if not path.is_file():
         return ()
     caps = []
-    for line, row in _read_csv(path, _CAP_COLUMNS):
-        start = _number(path, line, "start_s", row["start_s"])
-        end = _number(path, line, "end_s", row["end_s"])
-        cap = math.inf if row["cap"].strip() == "" else _number(path, line, "cap", row["cap"])
+    for line, row in read_csv_rows(path, _CAP_COLUMNS):
+        start = csv_number(path, line, "start_s", row["start_s"])
+        end = csv_number(path, line, "end_s", row["end_s"])
+        cap = math.inf if row["cap"].strip() == "" else csv_number(path, line, "cap", row["cap"])
         if not end > start:
             raise InputError(
                 str(path), f"line {line}, end_s", row["end_s"], f"must be after start_s {start:g}"
@@ -293,9 +295,9 @@ def load_tasks(run_dir: Path) -> tuple[TaskSpan, ...]:
     path = run_dir / "tasks.csv"
     tasks = []
     if path.is_file():
-        for line, row in _read_csv(path, _TASK_COLUMNS):
-            start = _number(path, line, "start_s", row["start_s"])
-            end = _number(path, line, "end_s", row["end_s"])
+        for line, row in read_csv_rows(path, _TASK_COLUMNS):
+            start = csv_number(path, line, "start_s", row["start_s"])
+            end = csv_number(path, line, "end_s", row["end_s"])
             if not end > start:
                 raise InputError(
                     str(path),
@@ -327,13 +329,13 @@ def load_events(path: Path) -> tuple[RunEvent, ...]:
         return ()
     events = [
         RunEvent(
-            _number(path, line, "t", row["t"]),
+            csv_number(path, line, "t", row["t"]),
             row["event"],
             row["job"],
             row["robot"] or "",
             row["station"] or "",
         )
-        for line, row in _read_csv(path, _EVENT_COLUMNS)
+        for line, row in read_csv_rows(path, _EVENT_COLUMNS)
     ]
     return tuple(sorted(events, key=lambda e: e.t))
 
@@ -356,13 +358,13 @@ def load_jobs(path: Path) -> tuple[JobRow, ...]:
 
     def number(line: int, row: dict[str, str], column: str) -> float | None:
         text = row.get(column) or ""
-        return None if text.strip() == "" else _number(path, line, column, text)
+        return None if text.strip() == "" else csv_number(path, line, column, text)
 
     def text(row: dict[str, str], column: str) -> str | None:
         return row.get(column) or None
 
     jobs = []
-    for line, row in _read_csv(path, _JOB_COLUMNS):
+    for line, row in read_csv_rows(path, _JOB_COLUMNS):
         passed_text = (row.get("passed") or "").strip().lower()
         if passed_text not in ("", "true", "false"):
             raise InputError(
@@ -446,8 +448,9 @@ def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
     )
 
 
-def _read_csv(path: Path, columns: Sequence[str]) -> list[tuple[int, dict[str, str]]]:
-    """Rows of a CSV file as ``(line number, row)``, after checking its header has `columns`."""
+def read_csv_rows(path: Path, columns: Sequence[str]) -> list[tuple[int, dict[str, str]]]:
+    """Rows of a run directory's CSV file as ``(line number, row)``, after checking its header
+    has `columns`; `InputError` naming the file when it is missing or lacks a column."""
     if not path.is_file():
         raise InputError(
             str(path),
@@ -471,13 +474,22 @@ def _read_csv(path: Path, columns: Sequence[str]) -> list[tuple[int, dict[str, s
         return [(reader.line_num, row) for row in reader]
 
 
-def _number(path: Path, line: int, column: str, text: str | None) -> float:
+def csv_number(
+    path: Path, line: int, column: str, text: str | None, *, finite: bool = False
+) -> float:
+    """The number in a CSV cell; `InputError` naming file, line, column and text otherwise.
+
+    NaN is always refused; infinities only when `finite` (an infinite cap or zone limit is a
+    legitimate "no limit", an infinite position is not).
+    """
     try:
         value = float(text)  # type: ignore[arg-type]
     except (TypeError, ValueError):
         raise InputError(str(path), f"line {line}, {column}", text, "must be a number") from None
     if math.isnan(value):
         raise InputError(str(path), f"line {line}, {column}", text, "must be a number, not NaN")
+    if finite and math.isinf(value):
+        raise InputError(str(path), f"line {line}, {column}", text, "must be a finite number")
     return value
 
 

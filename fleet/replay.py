@@ -25,7 +25,6 @@ tolerance (1 cm by default) of every recorded sample.
 
 from __future__ import annotations
 
-import csv
 import html
 import json
 import math
@@ -38,9 +37,16 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from fleet.errors import InputError
 from fleet.floor import Floor
-from fleet.plots import KIND_COLOURS, RunData, load_run, zone_colours, zone_label
+from fleet.plots import (
+    KIND_COLOURS,
+    RunData,
+    csv_number,
+    load_run,
+    read_csv_rows,
+    zone_colours,
+    zone_label,
+)
 
 __all__ = [
     "REPLAY_HTML",
@@ -218,23 +224,12 @@ def load_plans(path: Path) -> dict[str, list[Plan]]:
     if not path.is_file():
         return {}
     grouped: dict[tuple[str, float], list[tuple[float, float, float, float]]] = {}
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        header = reader.fieldnames or []
-        missing = [c for c in _PLAN_COLUMNS if c not in header]
-        if missing:
-            raise InputError(
-                str(path),
-                "header",
-                ",".join(header),
-                f"lacks {', '.join(missing)}; needs columns {','.join(_PLAN_COLUMNS)}",
-            )
-        for row in reader:
-            line = reader.line_num
-            sent, k, t, x, y = (
-                _number(path, line, col, row[col]) for col in ("t_sent", "k", "t", "x", "y")
-            )
-            grouped.setdefault((row["robot"], sent), []).append((k, t, x, y))
+    for line, row in read_csv_rows(path, _PLAN_COLUMNS):
+        sent, k, t, x, y = (
+            csv_number(path, line, col, row[col], finite=True)
+            for col in ("t_sent", "k", "t", "x", "y")
+        )
+        grouped.setdefault((row["robot"], sent), []).append((k, t, x, y))
     plans: dict[str, list[Plan]] = {}
     for (robot, sent), rows in sorted(grouped.items()):
         rows.sort()
@@ -402,16 +397,6 @@ def write_replay(
 
 
 # -- helpers ----------------------------------------------------------------------------------
-def _number(path: Path, line: int, column: str, text: str | None) -> float:
-    try:
-        value = float(text)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InputError(str(path), f"line {line}, {column}", text, "must be a number") from None
-    if not math.isfinite(value):
-        raise InputError(str(path), f"line {line}, {column}", text, "must be a finite number")
-    return value
-
-
 def _round(a: np.ndarray, digits: int) -> list[float]:
     return np.round(np.asarray(a, dtype=float), digits).tolist()
 

@@ -53,6 +53,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from fleet.errors import InputError
+from fleet.plots import csv_number
 
 __all__ = [
     "THROUGHPUT_PNG",
@@ -1011,13 +1012,7 @@ def _jobs_or_none(run: Run) -> JobStats | None:
 
 
 def _number(path: Path, line: int, column: str, text: str | None) -> float:
-    try:
-        value = float(text)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InputError(str(path), f"line {line}, {column}", text, "must be a number") from None
-    if not math.isfinite(value):
-        raise InputError(str(path), f"line {line}, {column}", text, "must be a finite number")
-    return value
+    return csv_number(path, line, column, text, finite=True)
 
 
 def _integer(path: Path, line: int, column: str, text: str | None) -> int:

@@ -48,14 +48,7 @@ def run_one(tag: str, out: Path | None) -> dict[str, float | str | None]:
     world = World(scenario)
     result = world.run()
     if out is not None:
-        world.recorder.write(
-            out / tag,
-            result.summary,
-            world.floor,
-            result.safety.examples,
-            world.cap_rows(),
-            world.job_rows(),
-        )
+        world.write(out / tag)
     rec = world.jobs[0]
     start, end = rec.print_start_s, rec.print_end_s
     assert start is not None and end is not None and rec.robot is not None

@@ -1,8 +1,8 @@
 """Case study 3 of the paper, reproduced: both scenarios, their lower bounds, side by side.
 
 Runs `scenarios/paper_case3_s1.toml` (spatial speed limits) and `_s2.toml` (plus print-task
-caps) through the engine with the MPC, writes each run directory (with trajectory.png and
-speed.png) under --out, computes each trip's minimum-time lower bound offline
+caps) through the engine with the MPC, writes each run directory (with trajectory.png,
+speed.png and gantt.png) under --out, computes each trip's minimum-time lower bound offline
 (`fleet.lowerbound`, a MILP over the whole trip), and prints arrival, the paper's arrival, the
 bound, arrival / bound, violations and solver figures.
 
@@ -33,9 +33,7 @@ def main() -> None:
         world = World(scenario)
         result = world.run()
         out = args.out / name
-        world.recorder.write(
-            out, result.summary, world.floor, result.safety.examples, world.cap_rows()
-        )
+        world.write(out)
         save_run_figures(out, world.floor)
         robot = next(iter(world.robots.values()))
         job = scenario.jobs.scripted[0]

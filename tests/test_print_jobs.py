@@ -63,14 +63,7 @@ def run(path: Path, tmp_path: Path | None = None):
     world = World(load_scenario(path))
     result = world.run()
     if tmp_path is not None:
-        world.recorder.write(
-            tmp_path / "out",
-            result.summary,
-            world.floor,
-            result.safety.examples,
-            world.cap_rows(),
-            world.job_rows(),
-        )
+        world.write(tmp_path / "out")
     return world, result
 
 

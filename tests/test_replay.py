@@ -51,16 +51,9 @@ def recorded(tmp_path_factory) -> Path:
     scenario = load_scenario("scenarios/default.toml").override(duration=120, robots=2)
     jobs = (ScriptedJob(0.0, "cnc_1_in", tasks=TASKS), ScriptedJob(0.0, "furnace_in", tasks=TASKS))
     world = World(replace(scenario, jobs=JobsConfig(mode="scripted", scripted=jobs)))
-    result = world.run()
+    world.run()
     out = tmp_path_factory.mktemp("replay") / "run"
-    world.recorder.write(
-        out,
-        result.summary,
-        world.floor,
-        result.safety.examples,
-        world.cap_rows(),
-        world.job_rows(),
-    )
+    world.write(out)
     write_tasks(out)
     write_plans(out)
     return out

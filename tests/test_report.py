@@ -112,14 +112,7 @@ def run_cell(cell: str, seed: int, part: str, rate: str, out: Path) -> dict:
     scenario = replace(base, jobs=replace(base.jobs, rate_per_h=float(rate), parts=(part,)))
     world = World(scenario)
     result = world.run()
-    world.recorder.write(
-        out / "cells" / cell,
-        result.summary,
-        world.floor,
-        result.safety.examples,
-        world.cap_rows(),
-        world.job_rows(),
-    )
+    world.write(out / "cells" / cell)
     params = {"controller": "follower", "jobs.parts": part, "rate_per_h": rate, "robots": "2"}
     return {"cell": cell, "seed": seed, "status": "ok", "run_dir": f"cells/{cell}"} | (
         params | {"wall_s": result.summary["wall_time_s"]} | flatten(result.summary)
