@@ -42,23 +42,54 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a scenario and write its run directory")
-    run.add_argument("scenario", nargs="?", help="scenario TOML (default: scenarios/default.toml)")
-    run.add_argument("--map", help="floor map TOML, overriding the scenario's")
-    run.add_argument("--robots", type=int, help="number of robots")
-    run.add_argument("--controller", help="controller plugin name (see `fleet plugins`)")
-    run.add_argument("--dispatcher", help="dispatcher plugin name (see `fleet plugins`)")
-    run.add_argument("--duration", type=float, help="simulated seconds")
-    run.add_argument("--seed", type=int, help="random seed")
-    run.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<seed>)")
-    run.add_argument("--quiet", action="store_true", help="no progress bar or table")
+    _scenario_arguments(run)
+    _output_arguments(run)
     run.add_argument(
-        "--no-figures",
-        dest="figures",
-        action="store_false",
-        help="skip trajectory.png, speed.png and gantt.png (they take about two seconds for an "
-        "hour of a few robots; `fleet plot RUN_DIR` draws them later)",
+        "--workers",
+        type=_non_negative_int,
+        default=0,
+        help="worker processes hosting the robots' agents (0: all in this process); they talk "
+        "to the engine over the scenario's [bus] address, or a private ipc:// socket",
     )
     run.set_defaults(handler=_cmd_run)
+
+    serve = sub.add_parser(
+        "serve",
+        help="run a scenario whose robot agents join from elsewhere (`fleet agent --connect`)",
+    )
+    _scenario_arguments(serve)
+    _output_arguments(serve)
+    serve.add_argument(
+        "--bind", required=True, help="where agents connect, e.g. tcp://*:5555 or ipc:///tmp/f"
+    )
+    serve.add_argument(
+        "--key", type=Path, help="the engine's secret key file (`fleet keys`): turns on CURVE"
+    )
+    serve.add_argument(
+        "--authorized", type=Path, help="directory of the agents' public key files (with --key)"
+    )
+    serve.add_argument(
+        "--wait", type=float, default=300.0, help="seconds to wait for agents (default 300)"
+    )
+    serve.set_defaults(handler=_cmd_serve)
+
+    agent = sub.add_parser("agent", help="host robot agents for a run started by `fleet serve`")
+    agent.add_argument("scenario", nargs="?", help="the run's scenario TOML (same as the engine's)")
+    agent.add_argument("--map", help="floor map TOML, as given to the engine")
+    agent.add_argument("--robots", type=int, help="number of robots, as given to the engine")
+    agent.add_argument("--controller", help="controller plugin name, as given to the engine")
+    agent.add_argument("--connect", required=True, help="the engine's address, tcp://HOST:PORT")
+    agent.add_argument("--only", help="host these robots, e.g. r01,r02 (default: all)")
+    agent.add_argument("--share", help="host the K-th of N even shares of the robots, e.g. 1/2")
+    agent.add_argument("--name", help="agent name (default agent-<pid>-1)")
+    agent.add_argument("--key", type=Path, help="this agent's secret key file (`fleet keys`)")
+    agent.add_argument("--server-key", type=Path, help="the engine's public key file (with --key)")
+    agent.set_defaults(handler=_cmd_agent)
+
+    keys = sub.add_parser("keys", help="make a CURVE key pair for `fleet serve` / `fleet agent`")
+    keys.add_argument("directory", type=Path, help="where to write NAME.key and NAME.key_secret")
+    keys.add_argument("--name", default="fleet", help="file name stem (default: fleet)")
+    keys.set_defaults(handler=_cmd_keys)
 
     sweep = sub.add_parser(
         "sweep", help="run a study: a grid of scenario values over seeds, cells in parallel"
@@ -133,21 +164,103 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _cmd_run(args: argparse.Namespace, console: Console) -> int:
-    from fleet.engine import World
+def _scenario_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", nargs="?", help="scenario TOML (default: scenarios/default.toml)")
+    p.add_argument("--map", help="floor map TOML, overriding the scenario's")
+    p.add_argument("--robots", type=int, help="number of robots")
+    p.add_argument("--controller", help="controller plugin name (see `fleet plugins`)")
+    p.add_argument("--dispatcher", help="dispatcher plugin name (see `fleet plugins`)")
+    p.add_argument("--duration", type=float, help="simulated seconds")
+    p.add_argument("--seed", type=int, help="random seed")
+
+
+def _output_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<seed>)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or table")
+    p.add_argument(
+        "--no-figures",
+        dest="figures",
+        action="store_false",
+        help="skip trajectory.png, speed.png and gantt.png (they take about two seconds for an "
+        "hour of a few robots; `fleet plot RUN_DIR` draws them later)",
+    )
+
+
+def _scenario(args: argparse.Namespace):
     from fleet.scenario import default_scenario, load_scenario
 
     scenario = load_scenario(args.scenario) if args.scenario else default_scenario()
-    scenario = scenario.override(
+    return scenario.override(
         map=args.map,
         robots=args.robots,
         controller=args.controller,
-        dispatcher=args.dispatcher,
-        duration=args.duration,
-        seed=args.seed,
+        dispatcher=getattr(args, "dispatcher", None),
+        duration=getattr(args, "duration", None),
+        seed=getattr(args, "seed", None),
     )
+
+
+def _cmd_run(args: argparse.Namespace, console: Console) -> int:
+    from fleet.engine import World
+
+    scenario = _scenario(args)
+    return _simulate(args, console, scenario, lambda: World(scenario, workers=args.workers))
+
+
+def _cmd_serve(args: argparse.Namespace, console: Console) -> int:
+    from dataclasses import replace
+
+    from fleet.bus.security import ServerCurve
+    from fleet.engine import World
+
+    scenario = replace(_scenario(args), bus_address=args.bind)
+    curve = None
+    if args.key is not None or args.authorized is not None:
+        if args.key is None or args.authorized is None:
+            raise FleetError("fleet serve: CURVE needs both --key and --authorized")
+        curve = ServerCurve(args.key, args.authorized)
+    if not args.quiet:
+        console.print(f"waiting up to {args.wait:g} s for agents to connect to {args.bind}")
+    return _simulate(
+        args,
+        console,
+        scenario,
+        lambda: World(scenario, remote=True, curve=curve, agent_wait_s=args.wait),
+    )
+
+
+def _cmd_agent(args: argparse.Namespace, console: Console) -> int:
+    from fleet.bus.security import ClientCurve
+    from fleet.engine.agents import parse_robot_selection, serve_agent
+
+    scenario = _scenario(args)
+    robots = parse_robot_selection(scenario, args.only, args.share)
+    curve = None
+    if args.key is not None or args.server_key is not None:
+        if args.key is None or args.server_key is None:
+            raise FleetError("fleet agent: CURVE needs both --key and --server-key")
+        curve = ClientCurve(args.key, args.server_key)
+    console.print(f"hosting {len(robots)} robots for {args.connect}")
+    stats = serve_agent(scenario, args.connect, robots, name=args.name, curve=curve)
+    console.print(
+        f"run finished: answered {stats['observations']} observations"
+        f" ({stats['controller_errors']} controller errors)"
+    )
+    return 0
+
+
+def _cmd_keys(args: argparse.Namespace, console: Console) -> int:
+    from fleet.bus.security import make_keypair
+
+    public, secret = make_keypair(args.directory, args.name)
+    console.print(f"public key: {public}\nsecret key: {secret} (keep it private)")
+    return 0
+
+
+def _simulate(args: argparse.Namespace, console: Console, scenario, make_world) -> int:
+    """Build the World, run it with a progress bar, write the run directory, show key figures."""
     out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
-    world = World(scenario)
+    world = make_world()
     if args.quiet:
         result = world.run()
     else:
@@ -174,6 +287,14 @@ def _cmd_run(args: argparse.Namespace, console: Console) -> int:
     if not args.quiet:
         _kpi_table(console, result.summary)
         console.print(f"run directory: {out}")
+    jobs = result.summary["jobs"]
+    if not jobs["accounted"]:
+        Console(stderr=True).print(
+            f"[bold red]error:[/] job accounting broken: {jobs['released']} released, "
+            f"{jobs['completed']} completed, {jobs['failed']} failed, "
+            f"{jobs['in_progress']} in progress (see {out / 'events.csv'})"
+        )
+        return 1
     return 0
 
 
@@ -275,6 +396,16 @@ def _cmd_replay(args: argparse.Namespace, console: Console) -> int:
     return 0
 
 
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 0")
+    return value
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -308,6 +439,7 @@ def _kpi_table(console: Console, s: dict) -> None:
         ("violations: zone speed", str(v["speed_zone"])),
         ("violations: print speed", str(v["print_speed"])),
         ("violations: collision", str(v["collision"])),
+        ("jobs failed / in progress", f"{jobs['failed']} / {jobs['in_progress']}"),
         ("digest", s["digest"][:16]),
     ]
     solver = s["solver"]

@@ -53,6 +53,9 @@ __all__ = [
     "Assignment",
     "DispatchContext",
     "Dispatcher",
+    "Announcement",
+    "Bid",
+    "Handback",
     "PluginWarning",
     "PluginInfo",
     "discover",
@@ -78,6 +81,10 @@ class ControlStatus(enum.Enum):
     FALLBACK = "fallback"
     """The controller's normal method failed (e.g. no solver answer); the command is a safe
     backup."""
+    BLOCKED = "blocked"
+    """The controller cannot bring the robot to its goal (no path, or stuck behind robots it
+    cannot get round); the command holds the robot and its agent hands the job back, so the
+    engine announces it again."""
     ERROR = "error"
     """The controller raised; the engine substituted braking. Set by the agent, not by plugins."""
 
@@ -147,13 +154,22 @@ class RobotSpec:
 
 @dataclass(frozen=True, slots=True)
 class Neighbour:
-    """Another robot as seen in an observation."""
+    """Another robot as seen in an observation.
+
+    `radius` is its footprint radius (m). `priority` is its current priority (the engine's; the
+    higher one goes first where two robots' plans conflict). `plan` is the part of its latest
+    plan (`Command.plan`) from the observation's time on, ``(t, x, y)`` samples with absolute
+    times; empty when it has sent none (assume it may stay where it is).
+    """
 
     robot: str
     x: float
     y: float
     vx: float
     vy: float
+    radius: float = 0.4
+    priority: int = 0
+    plan: tuple[tuple[float, float, float], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,6 +204,9 @@ class Observation:
     neighbours: tuple[Neighbour, ...] = ()
     speed_caps: tuple[tuple[float, float, float], ...] = ()
     print_end_s: float | None = None
+    priority: int = 0
+    blockers: tuple[str, ...] = ()
+    queued: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -240,6 +259,17 @@ class Controller(ABC):
     def compute(self, obs: Observation) -> Command:
         """Return the command for this tick. Must not block for longer than one period."""
 
+    def bid(self, obs: Observation, job: Announcement) -> float | None:
+        """This robot's bid for an announced job: seconds from ``obs.t`` until it could deliver
+        it, after the work it already has; None declines.
+
+        The default is `fleet.auction.estimate_completion` with the context's path planner
+        (finish the current job, then drive to the job's station, waiting for its print).
+        """
+        from fleet.auction import estimate_completion  # the auction module imports this one
+
+        return estimate_completion(self.context.planner, obs, job)
+
 
 @dataclass(frozen=True, slots=True)
 class Job:
@@ -266,12 +296,49 @@ class RobotStatus:
     vy: float
     idle: bool
     job: str | None = None
+    #: Jobs awarded to the robot that wait behind its current one (auctions only).
+    queued: int = 0
 
 
 @dataclass(frozen=True, slots=True)
 class Assignment:
     job: str
     robot: str
+
+
+@dataclass(frozen=True, slots=True)
+class Announcement:
+    """A job the engine offers the fleet over the bus (contract net): agents bid for it.
+
+    `print_s` is how long its print lasts (0: nothing to print); the robot prints while it
+    drives, and delivers once both the trip and the print are done.
+    """
+
+    job: str
+    x: float
+    y: float
+    print_s: float
+    released_s: float
+    due_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Bid:
+    """A robot's offer for an announced job: `estimate_s` seconds from the announcement's tick
+    until it could deliver the job."""
+
+    job: str
+    robot: str
+    estimate_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class Handback:
+    """A robot's agent gives a job back (it cannot finish it); the engine announces it again."""
+
+    robot: str
+    job: str
+    reason: str
 
 
 @dataclass(frozen=True)
@@ -292,10 +359,29 @@ class Dispatcher(ABC):
     """
 
     name: ClassVar[str] = ""
+    #: True for a contract-net dispatcher: the engine announces open jobs on the bus, the
+    #: robots' agents bid (`Controller.bid`) and `award` picks the winners; `assign` is then
+    #: only asked when no bids came (e.g. every agent declined).
+    announces: ClassVar[bool] = False
 
     def __init__(self, **options: Any) -> None:
         if options:
             raise TypeError(f"{type(self).__name__} takes no options, got {sorted(options)}")
+
+    def award(
+        self,
+        bids: Sequence[Bid],
+        jobs: Sequence[Job],
+        robots: Sequence[RobotStatus],
+        context: DispatchContext,
+    ) -> list[Assignment]:
+        """Award announced `jobs` from the robots' `bids` (announcing dispatchers only).
+
+        Return assignments of announced jobs to robots that bid for them, at most one per job;
+        a robot may be awarded a job while busy (it queues behind its current one). The engine
+        rejects (and logs) anything else and announces unawarded jobs again later.
+        """
+        raise NotImplementedError(f"{type(self).__name__} does not take bids")
 
     @abstractmethod
     def assign(

@@ -24,6 +24,7 @@ __all__ = [
     "PluginChoice",
     "ScriptedJob",
     "JobsConfig",
+    "BusConfig",
     "QualityConfig",
     "Scenario",
     "load_scenario",
@@ -97,6 +98,18 @@ class JobsConfig:
     due_in_s: float | None = None  # due time relative to release, for Poisson jobs
     scripted: tuple[ScriptedJob, ...] = ()
     parts: tuple[str, ...] = ()  # Poisson jobs print one of these parts, drawn uniformly
+    #: A job handed back more often than this (robots blocked, agents failed) is given up.
+    max_handbacks: int = 3
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """How the engine waits for robot agents (``[bus]``)."""
+
+    #: Longest wait (s) for an agent's answer in one control round.
+    timeout_s: float = 10.0
+    #: An agent silent this long (s; no answer, no heartbeat) while a round waits is lost.
+    lost_after_s: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -150,6 +163,10 @@ class Scenario:
     dispatcher: PluginChoice = field(default_factory=lambda: PluginChoice("greedy"))
     jobs: JobsConfig = field(default_factory=JobsConfig)
     bus_address: str | None = None  # None -> a private inproc:// address
+    bus: BusConfig = field(default_factory=BusConfig)
+    #: A robot that gets no closer to its goal for this long (s) while robots stand close is
+    #: deadlocked (None: no detection).
+    deadlock_after_s: float | None = 30.0
     arrival_tolerance_m: float = 0.05
     sensing_radius_m: float = 0.0  # > 0: observations list the robots this close (nearest 8)
     #: Per-axis speed cap (m/s) of each print task kind; kinds not listed are not capped.
@@ -256,6 +273,9 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     sensing = _non_negative(
         src, "scenario.sensing_radius_m", sc.take("sensing_radius_m", (int, float), 0.0)
     )
+    deadlock = _non_negative(
+        src, "scenario.deadlock_after_s", sc.take("deadlock_after_s", (int, float), 30.0)
+    )
     sc.finish()
 
     groups = root.take("robots", (dict, list), {})
@@ -316,6 +336,9 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     if mode == "scripted" and not scripted:
         raise ScenarioError(src, "jobs.scripted", [], "mode 'scripted' needs at least one job")
     job_parts = tuple(jb.take_list("parts", str, ()))
+    handbacks = jb.take("max_handbacks", int, 3)
+    if isinstance(handbacks, bool) or handbacks < 0:
+        raise ScenarioError(src, "jobs.max_handbacks", handbacks, "must be an integer >= 0")
     jb.finish()
     jobs = JobsConfig(
         mode,
@@ -324,6 +347,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         None if due_in is None else float(due_in),
         tuple(scripted),
         job_parts,
+        handbacks,
     )
 
     parts: dict[str, Path] = {}
@@ -378,6 +402,12 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         raise ScenarioError(
             src, "bus.address", address, "must start with inproc://, ipc:// or tcp://"
         )
+    timeout = _positive(src, "bus.timeout_s", bus.take("timeout_s", (int, float), 10.0))
+    lost_after = _positive(src, "bus.lost_after_s", bus.take("lost_after_s", (int, float), 3.0))
+    if lost_after > timeout:
+        raise ScenarioError(
+            src, "bus.lost_after_s", lost_after, f"must not exceed bus.timeout_s ({timeout:g})"
+        )
     bus.finish()
     root.finish()
     return Scenario(
@@ -391,6 +421,8 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         dispatcher=dispatcher,
         jobs=jobs,
         bus_address=address,
+        bus=BusConfig(timeout, lost_after),
+        deadlock_after_s=deadlock or None,
         arrival_tolerance_m=float(tol),
         sensing_radius_m=float(sensing),
         print_caps=caps,

@@ -36,10 +36,13 @@ from fleet.bus import (
 from fleet.bus.transport import new_inproc_address
 from fleet.errors import FleetError, MessageError
 from fleet.plugins import (
+    Announcement,
+    Bid,
     Command,
     Controller,
     ControllerContext,
     ControlStatus,
+    Handback,
     Neighbour,
     Observation,
     RobotSpec,
@@ -80,6 +83,22 @@ def observation(robot: str, tick: int, vx: float = 0.25, **kw) -> Observation:
 
 def expected(obs: Observation) -> Command:
     return Command(-obs.vx, float(obs.tick), ControlStatus.OK, ((obs.t, obs.x, obs.y),))
+
+
+def hello(name: str, robots: list[str], scenario: str = "") -> bytes:
+    """A raw agent's HELLO frame."""
+    return encode(MessageKind.HELLO, name, 0, {"robots": robots, "scenario": scenario})
+
+
+def act(name: str, tick: int, commands: dict, bids=(), handbacks=()) -> bytes:
+    """A raw agent's ACT frame."""
+    body = {"commands": commands, "bids": list(bids), "handbacks": list(handbacks)}
+    return encode(MessageKind.ACT, name, tick, body)
+
+
+def heartbeat(name: str, tick: int = 0) -> bytes:
+    """A raw agent's HEARTBEAT frame."""
+    return encode(MessageKind.HEARTBEAT, name, tick, {})
 
 
 def free_tcp_port() -> int:
@@ -162,9 +181,15 @@ OBS_FULL = Observation(
     goal=(10.0, 4.0),
     job="job-3",
     speed_cap=0.3,
-    neighbours=(Neighbour("r2", 4.0, -2.0, 0.1, 0.0), Neighbour("r3", 1.0, 1.0, 0.0, -0.2)),
+    neighbours=(
+        Neighbour("r2", 4.0, -2.0, 0.1, 0.0, 0.35, 3, ((1.75, 4.0, -2.0), (2.0, 4.025, -2.0))),
+        Neighbour("r3", 1.0, 1.0, 0.0, -0.2),
+    ),
     speed_caps=((1.75, 21.0, 0.3), (21.0, 51.0, 0.5)),
     print_end_s=1242.5,
+    priority=-2,
+    blockers=("r2", "r3"),
+    queued=1,
 )
 OBS_IDLE = Observation("r2", 7, 1.75, 0.0, 0.0, 0.0, 0.0)  # goal None, no job, no neighbours
 CMD_PLAN = Command(
@@ -176,10 +201,22 @@ CMD_PLAN = Command(
 )
 
 BODIES = {
-    MessageKind.HELLO: {"robots": ["r1", "r2"]},
+    MessageKind.HELLO: {"robots": ["r1", "r2"], "scenario": "sha256:0f3a"},
     MessageKind.WELCOME: {"accepted": ["r1"], "rejected": {"r2": "already hosted by agent 'a'"}},
-    MessageKind.OBSERVE: {"t": 1.75, "observations": [OBS_FULL, OBS_IDLE]},
-    MessageKind.ACT: {"commands": {"r1": CMD_PLAN, "r2": Command(0.0, 0.0, ControlStatus.IDLE)}},
+    MessageKind.OBSERVE: {
+        "t": 1.75,
+        "observations": [OBS_FULL, OBS_IDLE],
+        "announcements": [
+            Announcement("job-4", 3.0, -1.5, 120.0, 1.5, 900.0),
+            Announcement("job-5", 0.0, 2.0, 0.0, 1.75),
+        ],
+    },
+    MessageKind.ACT: {
+        "commands": {"r1": CMD_PLAN, "r2": Command(0.0, 0.0, ControlStatus.BLOCKED)},
+        "bids": [Bid("job-4", "r1", 42.5), Bid("job-5", "r2", 0.0)],
+        "handbacks": [Handback("r2", "job-1", "blocked")],
+    },
+    MessageKind.HEARTBEAT: {},
     MessageKind.BYE: {"reason": "run finished"},
 }
 
@@ -201,7 +238,10 @@ def test_observation_round_trips_with_neighbours_plan_and_none_goal():
         wire = observation_to_wire(obs)
         assert observation_from_wire(json.loads(json.dumps(wire))) == obs
     assert observation_to_wire(OBS_IDLE)["goal"] is None
-    assert observation_to_wire(OBS_FULL)["neighbours"][0] == ["r2", 4.0, -2.0, 0.1, 0.0]
+    assert json.loads(json.dumps(observation_to_wire(OBS_FULL)["neighbours"])) == [
+        ["r2", 4.0, -2.0, 0.1, 0.0, 0.35, 3, [[1.75, 4.0, -2.0], [2.0, 4.025, -2.0]]],
+        ["r3", 1.0, 1.0, 0.0, -0.2, 0.4, 0, []],
+    ]
 
 
 @pytest.mark.parametrize("outcome", list(SolverOutcome))
@@ -219,15 +259,40 @@ def test_command_round_trips_with_every_status(status):
 
 
 def test_encode_accepts_wire_dicts_as_well_as_objects():
-    body = {"t": 1.75, "observations": [observation_to_wire(OBS_FULL)]}
-    assert decode(encode(MessageKind.OBSERVE, "x", 7, body)).body["observations"] == [OBS_FULL]
-    body = {"commands": {"r1": command_to_wire(CMD_PLAN)}}
-    assert decode(encode(MessageKind.ACT, "x", 7, body)).body["commands"] == {"r1": CMD_PLAN}
+    offer = Announcement("j", 1.0, 2.0, 3.0, 4.0)
+    body = {
+        "t": 1.75,
+        "observations": [observation_to_wire(OBS_FULL)],
+        "announcements": [["j", 1.0, 2.0, 3.0, 4.0, None]],
+    }
+    got = decode(encode(MessageKind.OBSERVE, "x", 7, body)).body
+    assert got == {"t": 1.75, "observations": [OBS_FULL], "announcements": [offer]}
+    body = {
+        "commands": {"r1": command_to_wire(CMD_PLAN)},
+        "bids": [["j", "r1", 2]],
+        "handbacks": [["r1", "j", "blocked"]],
+    }
+    assert decode(encode(MessageKind.ACT, "x", 7, body)).body == {
+        "commands": {"r1": CMD_PLAN},
+        "bids": [Bid("j", "r1", 2.0)],
+        "handbacks": [Handback("r1", "j", "blocked")],
+    }
 
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 names = st.text(min_size=1, max_size=12)
-neighbours = st.builds(Neighbour, names, finite, finite, finite, finite)
+samples = st.lists(st.tuples(finite, finite, finite), max_size=4).map(tuple)
+neighbours = st.builds(
+    Neighbour,
+    names,
+    finite,
+    finite,
+    finite,
+    finite,
+    st.floats(min_value=0.0, exclude_min=True, allow_infinity=False),
+    st.integers(-(2**40), 2**40),
+    samples,
+)
 observations = st.builds(
     Observation,
     names,
@@ -241,6 +306,11 @@ observations = st.builds(
     st.none() | names,
     st.none() | st.floats(0, 1e6),
     st.lists(neighbours, max_size=3).map(tuple),
+    st.just(()),
+    st.none() | finite,
+    st.integers(-(2**40), 2**40),
+    st.lists(names, max_size=3).map(tuple),
+    st.integers(0, 2**40),
 )
 commands = st.builds(
     Command,
@@ -254,9 +324,11 @@ commands = st.builds(
 @settings(max_examples=60, deadline=None)
 @given(obs=observations, cmd=commands, tick=st.integers(0, 2**40))
 def test_any_finite_observation_and_command_survive_the_wire_exactly(obs, cmd, tick):
-    msg = decode(encode(MessageKind.OBSERVE, "exchange", tick, {"t": 0.0, "observations": [obs]}))
+    body = {"t": 0.0, "observations": [obs], "announcements": []}
+    msg = decode(encode(MessageKind.OBSERVE, "exchange", tick, body))
     assert msg.body["observations"] == [obs]
-    msg = decode(encode(MessageKind.ACT, "a", tick, {"commands": {obs.robot: cmd}}))
+    body = {"commands": {obs.robot: cmd}, "bids": [], "handbacks": []}
+    msg = decode(encode(MessageKind.ACT, "a", tick, body))
     assert msg.body["commands"] == {obs.robot: cmd}
 
 
@@ -264,7 +336,7 @@ def test_any_finite_observation_and_command_survive_the_wire_exactly(obs, cmd, t
 
 
 def envelope(**over) -> dict:
-    env = {"version": 3, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
+    env = {"version": 4, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
     env.update(over)
     return env
 
@@ -272,13 +344,13 @@ def envelope(**over) -> dict:
 def observe_with(**fields) -> dict:
     obs = observation_to_wire(OBS_FULL)
     obs.update(fields)
-    return envelope(kind="observe", body={"t": 1.0, "observations": [obs]})
+    return envelope(kind="observe", body={"t": 1.0, "observations": [obs], "announcements": []})
 
 
 def act_with(**fields) -> dict:
     cmd = command_to_wire(CMD_PLAN)
     cmd.update(fields)
-    return envelope(kind="act", body={"commands": {"r1": cmd}})
+    return envelope(kind="act", body={"commands": {"r1": cmd}, "bids": [], "handbacks": []})
 
 
 def raw(obj: object) -> bytes:
@@ -291,7 +363,8 @@ MALFORMED = [
     (b'{"version": 1} trailing', "is not valid JSON"),
     (raw([1, 2, 3]), "must be a JSON object"),
     (raw(envelope(version=1)), "version = 1: unsupported schema version"),
-    (raw(envelope(version=4)), "version = 4: unsupported schema version"),
+    (raw(envelope(version=3)), "version = 3: unsupported schema version"),
+    (raw(envelope(version=5)), "version = 5: unsupported schema version"),
     (raw(envelope(version="1")), "version = '1'"),
     (raw({"kind": "bye"}), "version = None"),
     (raw(envelope(kind="shout")), "kind = 'shout': must be one of 'hello'"),
@@ -303,8 +376,8 @@ MALFORMED = [
     (raw({k: v for k, v in envelope().items() if k != "body"}), "missing field(s) body"),
     (raw(envelope(body={"reason": "x", "more": 1})), "BYE message from 'a': body: unexpected"),
     (raw(envelope(body=[])), "body = []: must be a JSON object"),
-    (raw(envelope(kind="hello", body={"robots": ["r1", "r1"]})), "must be unique"),
-    (raw(envelope(kind="hello", body={"robots": ["r1", 7]})), "robots = 7"),
+    (raw(envelope(kind="hello", body={"robots": ["r1", "r1"], "scenario": ""})), "must be unique"),
+    (raw(envelope(kind="hello", body={"robots": ["r1", 7], "scenario": ""})), "robots = 7"),
     (raw(observe_with(vx="fast")), "observations[0].vx = 'fast': must be a finite number"),
     (raw(observe_with(x=True)), "observations[0].x = True: must be a finite number"),
     (
@@ -317,7 +390,11 @@ MALFORMED = [
     (raw(observe_with(tick=-3)), "observations[0].tick = -3"),
     (raw(observe_with(speed_cap=-1.0)), "speed_cap = -1.0: must be null or >= 0"),
     (raw(observe_with(neighbours=[["r2", 1.0, 2.0]])), "neighbours[0] = ['r2', 1.0, 2.0]"),
-    (raw(observe_with(neighbours=[["r2", 1, 2, "a", 4]])), "neighbours[0] = 'a'"),
+    (raw(observe_with(neighbours=[["r2", 1, 2, "a", 4, 0.4, 0, []]])), "neighbours[0] = 'a'"),
+    (
+        raw(observe_with(neighbours=[["r2", 1, 2, 3, 4]])),
+        "neighbours[0] = ['r2', 1, 2, 3, 4]: must be [robot, x, y, vx, vy, radius, priority, plan]",
+    ),
     (raw(observe_with(colour="red")), "unexpected field(s) ['colour']"),
     (raw(act_with(status="panic")), "status = 'panic': must be one of 'ok'"),
     (raw(act_with(ax=None)), "commands['r1'].ax = None: must be a finite number"),
@@ -363,7 +440,7 @@ def test_long_bad_values_are_quoted_truncated():
 
 
 def test_unexpected_kind_is_rejected_naming_what_was_expected():
-    frame = encode(MessageKind.HELLO, "a", 0, {"robots": []})
+    frame = hello("a", [])
     with pytest.raises(MessageError, match="unexpected kind HELLO; expected ACT, BYE"):
         decode(frame, expect=(MessageKind.ACT, MessageKind.BYE))
 
@@ -371,9 +448,10 @@ def test_unexpected_kind_is_rejected_naming_what_was_expected():
 def test_encode_refuses_non_finite_values_and_names_where():
     bad = Observation("r1", 1, 0.0, math.inf, 0.0, 0.0, 0.0)
     with pytest.raises(MessageError, match=r"body.observations\[0\].x = inf"):
-        encode(MessageKind.OBSERVE, "exchange", 1, {"t": 0.0, "observations": [bad]})
+        body = {"t": 0.0, "observations": [bad], "announcements": []}
+        encode(MessageKind.OBSERVE, "exchange", 1, body)
     with pytest.raises(MessageError, match="robot 'r7'.*command.ay = nan"):
-        encode(MessageKind.ACT, "a", 1, {"commands": {"r7": Command(0.0, math.nan)}})
+        act("a", 1, {"r7": Command(0.0, math.nan)})
     with pytest.raises(MessageError, match="tick = -1"):
         encode(MessageKind.BYE, "a", -1, {"reason": ""})
 
@@ -381,25 +459,42 @@ def test_encode_refuses_non_finite_values_and_names_where():
 @pytest.mark.parametrize(
     ("kind", "body", "says"),
     [
-        (MessageKind.ACT, {}, "ACT from 'a' at tick 1: body: missing field(s) commands"),
-        (MessageKind.ACT, {"commands": [1.0]}, "body.commands = [1.0]: must be a mapping"),
         (
             MessageKind.ACT,
-            {"commands": {"r1": (0.0, 0.0)}},
+            {},
+            "ACT from 'a' at tick 1: body: missing field(s) bids, commands, handbacks",
+        ),
+        (
+            MessageKind.ACT,
+            {"commands": [1.0], "bids": [], "handbacks": []},
+            "body.commands = [1.0]: must be a mapping",
+        ),
+        (
+            MessageKind.ACT,
+            {"commands": {"r1": (0.0, 0.0)}, "bids": [], "handbacks": []},
             "body.commands['r1'] = (0.0, 0.0): must be a fleet.plugins.Command",
         ),
-        (MessageKind.OBSERVE, {"observations": []}, "body: missing field(s) t"),
         (
             MessageKind.OBSERVE,
-            {"t": 0.0, "observations": None},
+            {"observations": [], "announcements": []},
+            "body: missing field(s) t",
+        ),
+        (
+            MessageKind.OBSERVE,
+            {"t": 0.0, "observations": None, "announcements": []},
             "body.observations = None: must be a list",
         ),
         (
             MessageKind.OBSERVE,
-            {"t": 0.0, "observations": ["r1"]},
+            {"t": 0.0, "observations": ["r1"], "announcements": []},
             "body.observations[0] = 'r1': must be a fleet.plugins.Observation",
         ),
-        (MessageKind.HELLO, {"robots": [], "colour": 1}, "unexpected field(s) ['colour']"),
+        (
+            MessageKind.HELLO,
+            {"robots": [], "scenario": "", "colour": 1},
+            "unexpected field(s) ['colour']",
+        ),
+        (MessageKind.HEARTBEAT, {"alive": True}, "unexpected field(s) ['alive']"),
         (MessageKind.BYE, None, "BYE from 'a' at tick 1: body = None: must be a mapping"),
     ],
 )
@@ -671,16 +766,16 @@ def test_injected_garbage_is_dropped_and_counted_while_rounds_go_on():
         try:
             run_rounds(ex, robots, 3)
             # An agent claiming a robot already hosted and one not in the run.
-            intruder.send(encode(MessageKind.HELLO, "intruder", 0, {"robots": ["r0", "ghost"]}))
+            intruder.send(hello("intruder", ["r0", "ghost"]))
             intruder.send(b"\x00garbage")
             intruder.send_multipart([b"two", b"frames"])
             intruder.send(raw(envelope(version=99)))
-            act = {"commands": {"r0": Command(9.0, 9.0)}}
-            intruder.send(encode(MessageKind.ACT, "intruder", 2, act))  # stale: tick 2 is over
-            intruder.send(encode(MessageKind.ACT, "intruder", 4, act))  # current, but not asked
+            cmds = {"r0": Command(9.0, 9.0)}
+            intruder.send(act("intruder", 2, cmds))  # stale: tick 2 is over
+            intruder.send(act("intruder", 4, cmds))  # current, but not asked
             intruder.send(encode(MessageKind.OBSERVE, "intruder", 4, BODIES[MessageKind.OBSERVE]))
-            intruder.send(encode(MessageKind.ACT, "impostor", 4, act))  # not the name it gave
-            stranger.send(encode(MessageKind.ACT, "stranger", 4, act))  # never said HELLO
+            intruder.send(act("impostor", 4, cmds))  # not the name it gave
+            stranger.send(act("stranger", 4, cmds))  # never said HELLO
             result = ex.round(4, 1.0, [observation(r, 4) for r in robots])
             assert result == {r: expected(observation(r, 4)) for r in robots}
             welcome = decode(intruder.recv(), expect=(MessageKind.WELCOME,))
@@ -708,13 +803,13 @@ def test_commands_for_robots_not_asked_are_rejected_and_silent_robots_missing():
         def sloppy_agent() -> None:
             sock = ctx.socket(zmq.DEALER)
             sock.connect(ex.address)
-            sock.send(encode(MessageKind.HELLO, "sloppy", 0, {"robots": ["s1", "s2"]}))
+            sock.send(hello("sloppy", ["s1", "s2"]))
             decode(sock.recv(), expect=(MessageKind.WELCOME,))
             ready.set()
             msg = decode(sock.recv(), expect=(MessageKind.OBSERVE,))
             # Answers s1, forgets s2, and invents a robot.
             cmds = {"s1": Command(1.0, 1.0), "zz": Command(2.0, 2.0)}
-            sock.send(encode(MessageKind.ACT, "sloppy", msg.tick, {"commands": cmds}))
+            sock.send(act("sloppy", msg.tick, cmds))
             decode(sock.recv(), expect=(MessageKind.BYE,))
             sock.close(linger=0)
 
@@ -731,32 +826,44 @@ def test_commands_for_robots_not_asked_are_rejected_and_silent_robots_missing():
 
 def test_an_agent_that_does_not_answer_in_time_costs_only_its_robots():
     ctx = zmq.Context.instance()
+    stop = threading.Event()
     with Exchange(timeout_s=0.2) as ex:
         local_fleet(ex, {"a": ["r1"]})
-        silent = ctx.socket(zmq.DEALER)
-        silent.connect(ex.address)
+
+        def late_agent() -> None:
+            # Alive (it keeps heartbeating) but it never answers in time: timed out, not lost.
+            sock = ctx.socket(zmq.DEALER)
+            sock.connect(ex.address)
+            sock.send(hello("late", ["r2"]))
+            while not stop.wait(0.02):
+                sock.send(heartbeat("late"))
+            sock.send(act("late", 1, {"r2": Command(0, 0)}))
+            sock.close()
+
+        worker = threading.Thread(target=late_agent, daemon=True)
+        worker.start()
         try:
-            silent.send(encode(MessageKind.HELLO, "silent", 0, {"robots": ["r2"]}))
             ex.wait_for_agents(["r1", "r2"])
             result = ex.round(1, 0.25, [observation("r1", 1), observation("r2", 1)])
             assert list(result) == ["r1"]
             assert ex.stats["timeouts"] == 1 and ex.stats["commands_missing"] == 1
-            # Its late answer arrives during the next round and is dropped as stale.
-            silent.send(encode(MessageKind.ACT, "silent", 1, {"commands": {"r2": Command(0, 0)}}))
-            result = ex.round(2, 0.5, [observation("r1", 2)])
-            assert list(result) == ["r1"]
-            assert ex.stats["stale"] == 1
+            assert ex.stats["agents_lost"] == 0 and ex.agents["late"] == {"r2"}
+            assert ex.stats["heartbeats"] > 0
         finally:
-            silent.close(linger=0)
+            stop.set()
+            worker.join(timeout=30)
+        # Its late answer arrives during the next round and is dropped as stale.
+        result = ex.round(2, 0.5, [observation("r1", 2)])
+        assert list(result) == ["r1"]
+        assert ex.stats["stale"] == 1
 
 
 def test_a_flood_of_stale_answers_does_not_postpone_the_round_timeout(caplog):
     caplog.set_level(logging.ERROR, logger="fleet.bus")  # thousands of warnings otherwise
     stop = threading.Event()
     with Exchange(timeout_s=0.2) as ex:
-        hello = encode(MessageKind.HELLO, "spammer", 0, {"robots": ["r1"]})
-        stale = encode(MessageKind.ACT, "spammer", 0, {"commands": {}})
-        worker, outlasted = flood(ex.address, hello, stale, stop)
+        stale = act("spammer", 0, {})
+        worker, outlasted = flood(ex.address, hello("spammer", ["r1"]), stale, stop)
         try:
             ex.wait_for_agents(["r1"])
             # The spammer never answers tick 1; the round must give up while it keeps sending.
@@ -790,35 +897,60 @@ def test_an_agent_whose_queue_is_full_keeps_its_robots():
     ctx = zmq.Context()
     ctx.setsockopt(zmq.SNDHWM, 1)
     ctx.setsockopt(zmq.RCVHWM, 1)
-    behind = None
+    read_now, caught_up, stop = threading.Event(), threading.Event(), threading.Event()
+    kinds: list[MessageKind] = []
+    last: list = []
+
+    def behind_agent() -> None:
+        # Alive (it heartbeats every few ms, so it is never declared lost) but it reads
+        # nothing until told to; then it catches up and waits for one more OBSERVE.
+        sock = ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.ROUTING_ID, b"behind")
+        sock.connect(ex.address)
+        sock.send(hello("behind", ["r1"]))
+
+        def beat_until(event: threading.Event) -> None:
+            while not event.wait(0.005):
+                with contextlib.suppress(zmq.Again):  # one still queued says it all
+                    sock.send(heartbeat("behind"), zmq.NOBLOCK)
+
+        try:
+            beat_until(read_now)
+            while sock.poll(100):
+                kinds.append(decode(sock.recv()).kind)
+            caught_up.set()
+            while not stop.is_set() and not last:
+                with contextlib.suppress(zmq.Again):
+                    sock.send(heartbeat("behind"), zmq.NOBLOCK)
+                if sock.poll(5):
+                    last.append(decode(sock.recv()))
+        finally:
+            sock.close(linger=0)
+
     try:
-        with Exchange(context=ctx, timeout_s=0.01) as ex:
-            behind = ctx.socket(zmq.DEALER)
-            behind.setsockopt(zmq.ROUTING_ID, b"behind")
-            behind.connect(ex.address)
-            behind.send(encode(MessageKind.HELLO, "behind", 0, {"robots": ["r1"]}))
-            ex.wait_for_agents(["r1"])
-            tick = 0
-            while ex.stats["send_failures"] == 0 and tick < 20:
-                tick += 1
-                assert ex.round(tick, 0.0, [observation("r1", tick)]) == {}
-            assert ex.stats["send_failures"] == 1
-            assert ex.agents == {"behind": {"r1"}}
-            # Once it has caught up it is asked again.
-            kinds = []
-            while behind.poll(100):
-                kinds.append(decode(behind.recv()).kind)
-            assert kinds[0] is MessageKind.WELCOME and kinds[1:] == [MessageKind.OBSERVE] * (
-                len(kinds) - 1
-            )
-            ex.round(tick + 1, 0.0, [observation("r1", tick + 1)])
-            assert behind.poll(5000)
-            msg = decode(behind.recv())
-            assert (msg.kind, msg.tick) == (MessageKind.OBSERVE, tick + 1)
+        with Exchange(context=ctx, timeout_s=0.05) as ex:
+            worker = threading.Thread(target=behind_agent, daemon=True)
+            worker.start()
+            try:
+                ex.wait_for_agents(["r1"])
+                tick = 0
+                while ex.stats["send_failures"] == 0 and tick < 20:
+                    tick += 1
+                    assert ex.round(tick, 0.0, [observation("r1", tick)]) == {}
+                assert ex.stats["send_failures"] == 1 and ex.stats["agents_lost"] == 0
+                assert ex.agents == {"behind": {"r1"}}
+                # Once it has caught up it is asked again.
+                read_now.set()
+                assert caught_up.wait(30)
+                assert kinds[0] is MessageKind.WELCOME
+                assert kinds[1:] == [MessageKind.OBSERVE] * (len(kinds) - 1)
+                ex.round(tick + 1, 0.0, [observation("r1", tick + 1)])
+            finally:
+                stop.set()
+                worker.join(timeout=30)
+            assert (last[0].kind, last[0].tick) == (MessageKind.OBSERVE, tick + 1)
             assert ex.stats["send_failures"] == 1
     finally:
-        if behind is not None:
-            behind.close(linger=0)
         ctx.destroy(linger=0)
 
 
@@ -827,10 +959,10 @@ def test_the_agent_drops_bad_messages_and_keeps_serving():
     engine = ctx.socket(zmq.ROUTER)
     address = "inproc://fake-engine"
     engine.bind(address)
-    host = AgentHost(address, {"r1": Echo()}, name="h")
+    host = AgentHost(address, {"r1": Echo()}, name="h", heartbeat_s=None)
     try:
-        peer, hello = engine.recv_multipart()
-        assert decode(hello).body == {"robots": ["r1"]}
+        peer, frame = engine.recv_multipart()
+        assert decode(frame).body == {"robots": ["r1"], "scenario": ""}
 
         def deliver(frame: bytes) -> None:
             engine.send_multipart([peer, frame])
@@ -838,20 +970,21 @@ def test_the_agent_drops_bad_messages_and_keeps_serving():
 
         def observe(sender: str, tick: int, robots: list[str]) -> bytes:
             obs = [observation(r, tick) for r in robots]
-            return encode(MessageKind.OBSERVE, sender, tick, {"t": 0.0, "observations": obs})
+            body = {"t": 0.0, "observations": obs, "announcements": []}
+            return encode(MessageKind.OBSERVE, sender, tick, body)
 
         deliver(b"[1, 2")  # garbage
         deliver(observe("engine", 1, ["r1"]))  # before WELCOME
         welcome = {"accepted": ["r1"], "rejected": {}}
         deliver(encode(MessageKind.WELCOME, "engine", 0, welcome))
-        deliver(encode(MessageKind.ACT, "engine", 1, {"commands": {}}))  # wrong kind for agents
+        deliver(act("engine", 1, {}))  # wrong kind for agents
         deliver(observe("someone-else", 2, ["r1"]))  # unknown sender
         deliver(raw(envelope(kind="observe", version=0)))  # wrong version
         assert host.stats["messages_rejected"] == 5
         deliver(observe("engine", 3, ["r1", "r9"]))  # r9 is not ours
         ident, answer = engine.recv_multipart()
-        act = decode(answer, expect=(MessageKind.ACT,))
-        assert (ident, act.tick, act.body["commands"]) == (
+        answered = decode(answer, expect=(MessageKind.ACT,))
+        assert (ident, answered.tick, answered.body["commands"]) == (
             peer,
             3,
             {"r1": expected(observation("r1", 3))},
@@ -880,13 +1013,13 @@ def test_after_a_stall_the_agent_answers_only_the_newest_observe():
     engine = zmq.Context.instance().socket(zmq.ROUTER)
     address = new_inproc_address()
     engine.bind(address)
-    host = AgentHost(address, {"r1": Recording()}, name="h")
+    host = AgentHost(address, {"r1": Recording()}, name="h", heartbeat_s=None)
     try:
         peer, _ = engine.recv_multipart()
         assert peer == b"h"  # the name is the routing id
 
         def observe(tick: int) -> bytes:
-            body = {"t": 0.0, "observations": [observation("r1", tick)]}
+            body = {"t": 0.0, "observations": [observation("r1", tick)], "announcements": []}
             return encode(MessageKind.OBSERVE, "engine", tick, body)
 
         def answered() -> int:
@@ -1024,16 +1157,32 @@ def test_a_slow_local_host_does_not_use_up_the_remote_hosts_timeout(tmp_path):
             return super().compute(obs)
 
     class AfterLocal(Echo):
+        host: AgentHost
+
         def compute(self, obs: Observation) -> Command:
-            local_done.wait(30)
+            # It keeps heartbeating while it waits (as a host does between robots), so the
+            # exchange knows it is alive, only busy.
+            give_up = time.monotonic() + 30
+            while not local_done.wait(0.02) and time.monotonic() < give_up:
+                self.host.heartbeat()
             local_done.clear()
             time.sleep(0.05)
             return super().compute(obs)
 
+    done: list[AgentHost] = []
+
+    def remote() -> None:
+        controller = AfterLocal()
+        with AgentHost(ex.address, {"remote": controller}, name="remote") as host:
+            controller.host = host
+            host.serve(idle_timeout_s=30)
+        done.append(host)
+
     with Exchange(f"ipc://{tmp_path}/bus.sock", timeout_s=0.3) as ex:
         local = Late(ex.address, {"local": SlowLocal()}, name="local")
         ex.add_local(local)
-        worker, done = serve_in_thread(ex.address, {"remote": AfterLocal()}, "remote")
+        worker = threading.Thread(target=remote, daemon=True)
+        worker.start()
         ex.wait_for_agents(["local", "remote"])
         for tick in (1, 2):
             local.hold = True

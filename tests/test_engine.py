@@ -172,7 +172,7 @@ def test_unknown_plugin_is_a_clear_error(scenario_file):
 def test_a_controller_that_raises_costs_its_robot_a_brake_not_the_run(
     scenario_file, monkeypatch, caplog
 ):
-    import fleet.engine.world as world_module
+    import fleet.engine.agents as agents_module
     from fleet_plugins.follower import PathFollower
 
     class Flaky(PathFollower):
@@ -183,7 +183,7 @@ def test_a_controller_that_raises_costs_its_robot_a_brake_not_the_run(
                 raise RuntimeError("sensor glitch")
             return super().compute(obs)
 
-    monkeypatch.setattr(world_module, "load_controller", lambda name, options: Flaky())
+    monkeypatch.setattr(agents_module, "load_controller", lambda name, options: Flaky())
     sc = replace(load_scenario(scenario_file), duration_s=60.0)
     result = World(sc).run()
     engine = result.summary["engine"]

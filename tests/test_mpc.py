@@ -658,12 +658,18 @@ def test_every_command_while_driving_reports_an_optimal_solve(interface: str) ->
     goal = (18.0, 5.0)
     loop = Loop.start(MPCController(horizon=8, interface=interface), L_HALL, (2.0, 5.0), SPEC_1S)
     assert loop.drive(goal, limit=80)
-    for _ in range(3):  # holding at the goal still solves
-        loop.step(goal)
-    for cmd in loop.commands:
+    driving = list(loop.commands)
+    for cmd in driving:
         assert cmd.status is ControlStatus.OK
         assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.OPTIMAL
         assert cmd.solve.solver_s > 0 and cmd.solve.step_s >= cmd.solve.solver_s
+    # Parked on the goal the robot holds without a solve, and says it stays for the horizon.
+    held = loop.step(goal)
+    assert held.status is ControlStatus.OK and held.solve is None
+    assert max(abs(held.ax), abs(held.ay)) < 1e-3
+    assert held.plan[0][1:] == pytest.approx(held.plan[-1][1:], abs=1e-6)
+    assert held.plan[-1][0] > held.plan[0][0]
+    assert loop.step(goal).solve is None
     idle = loop.step(None)
     assert idle.status is ControlStatus.IDLE and idle.solve is None
 

@@ -4,19 +4,24 @@
 the engine's side (`Exchange`: one OBSERVE/ACT round trip per control tick) and `agent` the
 robots' side (`AgentHost`: wraps the controllers of the robots it hosts). The same classes work
 in one process over ``inproc://`` (pumped synchronously, deterministic) and across processes
-over ``ipc://`` and ``tcp://``.
+over ``ipc://`` and ``tcp://``. Besides commands, the bus carries the contract net (job
+announcements, bids, handbacks) and liveness (heartbeats; `BusEvent` says which agents joined,
+were lost, left or were refused).
 """
 
 from fleet.bus.agent import AGENT_STATS, AgentHost, braking_command
-from fleet.bus.exchange import EXCHANGE_STATS, Exchange
+from fleet.bus.exchange import EXCHANGE_STATS, BusEvent, BusEventKind, Exchange
 from fleet.bus.schema import (
     SCHEMA_VERSION,
     Message,
     MessageKind,
+    announcement_to_wire,
+    bid_to_wire,
     command_from_wire,
     command_to_wire,
     decode,
     encode,
+    handback_to_wire,
     observation_from_wire,
     observation_to_wire,
 )
@@ -32,10 +37,15 @@ __all__ = [
     "observation_from_wire",
     "command_to_wire",
     "command_from_wire",
+    "announcement_to_wire",
+    "bid_to_wire",
+    "handback_to_wire",
     "AddressError",
     "parse_address",
     "Exchange",
     "EXCHANGE_STATS",
+    "BusEvent",
+    "BusEventKind",
     "AgentHost",
     "AGENT_STATS",
     "braking_command",

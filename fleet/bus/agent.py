@@ -7,6 +7,15 @@ never raises on what it receives: malformed, unexpected or stale messages are lo
 returns something that is not a valid `Command`, gets its robot a braking command with
 `ControlStatus.ERROR`, and the host keeps going.
 
+Contract net: an OBSERVE may announce jobs; the host asks each observed robot's controller for
+a bid (`Controller.bid`) on every announced job and sends the bids with the commands. A
+controller that answers `ControlStatus.BLOCKED` while its robot has a job hands that job back
+(`Handback`, once per robot and job), so the engine announces it again.
+
+Liveness: a host run by `serve` sends a HEARTBEAT whenever it has sent nothing for
+`heartbeat_s`, while idle and between robots while computing a long OBSERVE, so the exchange
+can tell a slow agent from a dead one. Hosts the engine pumps itself send none.
+
 Only the newest OBSERVE matters: the exchange has given up on older ticks by the time a newer
 one is queued, so after a stall the host answers the newest and skips the rest (counted as
 ``skipped``) instead of computing every abandoned tick in turn.
@@ -20,17 +29,30 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 import os
 import time
 from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import zmq
 
 from fleet.bus.schema import Message, MessageKind, command_to_wire, decode, encode
 from fleet.bus.transport import ROUTING_ID_MAX, connect_dealer, default_context
 from fleet.errors import MessageError, PluginError
-from fleet.plugins import Command, Controller, ControlStatus, Observation
+from fleet.plugins import (
+    Announcement,
+    Bid,
+    Command,
+    Controller,
+    ControlStatus,
+    Handback,
+    Observation,
+)
 from fleet.robot import brake_input
+
+if TYPE_CHECKING:
+    from fleet.bus.security import ClientCurve
 
 __all__ = ["AgentHost", "AGENT_STATS", "braking_command"]
 
@@ -44,6 +66,12 @@ AGENT_STATS = (
     "observations",
     "unknown_robots",
     "controller_errors",
+    "bids",  # bids sent
+    "bids_declined",  # announcements a controller declined (bid returned None)
+    "bids_dropped",  # bids that were not a finite number >= 0
+    "bid_errors",  # bid() raised
+    "handbacks",  # jobs handed back (BLOCKED)
+    "heartbeats",  # HEARTBEATs sent
 )
 
 # Plain ints: pyzmq's enum flags cost microseconds per operation on the hot path.
@@ -87,6 +115,16 @@ class AgentHost:
         ZeroMQ context; default the process-wide one (inproc needs the exchange's).
     log:
         Logger; default ``fleet.bus``.
+    heartbeat_s:
+        Send a HEARTBEAT whenever nothing was sent for this long (s), in `serve` and between
+        robots while computing; None sends none (`Exchange.add_local` sets that: the engine
+        pumps local hosts itself). Keep it well below the exchange's ``lost_after_s``.
+    scenario:
+        Fingerprint of the scenario the controllers were set up for, sent in HELLO; an
+        exchange running another scenario refuses every robot and says BYE. ``""``: unchecked.
+    curve:
+        CurveZMQ client keys (`fleet.bus.security.ClientCurve`) for an exchange that requires
+        them; None connects in the clear.
 
     Attributes
     ----------
@@ -100,6 +138,8 @@ class AgentHost:
         True once the exchange said BYE.
     last_tick:
         The newest tick whose OBSERVE this host answered; -1 before the first.
+    heartbeat_s:
+        As the parameter; may be changed between calls.
     stats:
         Counters named in `AGENT_STATS`.
     """
@@ -112,7 +152,21 @@ class AgentHost:
         name: str | None = None,
         context: zmq.Context | None = None,
         log: logging.Logger | None = None,
+        heartbeat_s: float | None = 0.5,
+        scenario: str = "",
+        curve: ClientCurve | None = None,
     ) -> None:
+        if heartbeat_s is not None and not (
+            isinstance(heartbeat_s, int | float)
+            and not isinstance(heartbeat_s, bool)
+            and math.isfinite(heartbeat_s)
+            and heartbeat_s > 0
+        ):
+            raise ValueError(
+                f"agent host heartbeat_s = {heartbeat_s!r}: must be a positive number or None"
+            )
+        if not isinstance(scenario, str):
+            raise ValueError(f"agent host scenario = {scenario!r}: must be a string ('' unchecked)")
         for robot, controller in controllers.items():
             if not isinstance(robot, str) or not robot:
                 raise PluginError(f"agent host: robot id {robot!r} must be a non-empty string")
@@ -146,9 +200,17 @@ class AgentHost:
         self.finished = False
         self.closed = False
         self.last_tick = -1
+        self.heartbeat_s: float | None = None if heartbeat_s is None else float(heartbeat_s)
+        self.scenario = scenario
         self._failed: set[str] = set()
-        self.socket = connect_dealer(self.context, address, self.identity)
-        self._send(MessageKind.HELLO, 0, {"robots": list(self.controllers)})
+        self._bid_failed: set[str] = set()
+        self._handed_back: dict[str, str] = {}  # robot -> the job it last handed back
+        self._last_sent = time.monotonic()
+        if curve is None:
+            self.socket = connect_dealer(self.context, address, self.identity)
+        else:
+            self.socket = connect_dealer(self.context, address, self.identity, curve=curve)
+        self._send(MessageKind.HELLO, 0, {"robots": list(self.controllers), "scenario": scenario})
 
     # -- running ----------------------------------------------------------------------------
     def pump(self, timeout_ms: int | None = 0) -> bool:
@@ -211,22 +273,29 @@ class AgentHost:
     def serve(self, idle_timeout_s: float | None = None) -> None:
         """Answer the exchange until it says BYE (or nothing arrives for `idle_timeout_s`).
 
-        Does not close the host; call `close` (or use ``with``) afterwards.
+        Sends a HEARTBEAT whenever nothing was sent for `heartbeat_s` (once the exchange has
+        accepted a robot). Does not close the host; call `close` (or use ``with``) afterwards.
         """
         last = time.monotonic()
         while not self.finished and not self.closed:
-            if idle_timeout_s is None:
-                self.pump(None)
-                continue
-            remaining = idle_timeout_s - (time.monotonic() - last)
-            if remaining <= 0:
-                self.log.warning(
-                    "agent %s: nothing from the exchange for %g s; stopping",
-                    self.name,
-                    idle_timeout_s,
-                )
-                return
-            if self.pump(max(1, int(remaining * 1000))):
+            now = time.monotonic()
+            wait: float | None = None
+            if idle_timeout_s is not None:
+                wait = idle_timeout_s - (now - last)
+                if wait <= 0:
+                    self.log.warning(
+                        "agent %s: nothing from the exchange for %g s; stopping",
+                        self.name,
+                        idle_timeout_s,
+                    )
+                    return
+            if self.heartbeat_s is not None and self.accepted:
+                due = self._last_sent + self.heartbeat_s - now
+                if due <= 0:
+                    self._heartbeat()
+                    due = self.heartbeat_s
+                wait = due if wait is None else min(wait, due)
+            if self.pump(None if wait is None else max(1, math.ceil(wait * 1000))):
                 last = time.monotonic()
 
     def close(self) -> None:
@@ -237,6 +306,16 @@ class AgentHost:
             self._send(MessageKind.BYE, max(self.last_tick, 0), {"reason": "agent closing"})
         self.socket.close()
         self.closed = True
+
+    def heartbeat(self) -> None:
+        """Send a HEARTBEAT now, whatever `heartbeat_s` says.
+
+        For code that keeps the host's thread busy outside `serve` (a loop of its own around
+        `pump`, a long controller step) and must not be taken for dead by the exchange. Call
+        it from the thread that uses the host, like every other method.
+        """
+        if not self.closed:
+            self._heartbeat()
 
     def __enter__(self) -> AgentHost:
         return self
@@ -299,8 +378,13 @@ class AgentHost:
             )
             return
         self.last_tick = msg.tick
+        tick = msg.tick
         commands: dict[str, dict] = {}
+        bids: list[Bid] = []
+        handbacks: list[Handback] = []
         accepted = self.accepted
+        announcements = msg.body["announcements"]
+        beat = self.heartbeat_s
         for obs in msg.body["observations"]:
             robot = obs.robot
             if robot not in accepted or robot in commands:
@@ -308,19 +392,40 @@ class AgentHost:
                 self.log.warning(
                     "agent %s: tick %d: observation of robot %s, which %s",
                     self.name,
-                    msg.tick,
+                    tick,
                     robot,
                     "appears twice" if robot in commands else "this host does not serve",
                 )
                 continue
-            commands[robot] = self._compute(robot, obs)
+            wire, status = self._compute(robot, obs)
+            commands[robot] = wire
+            job = obs.job
+            last = self._handed_back.get(robot)
+            if last is not None and last != job:
+                del self._handed_back[robot]  # it has moved on: a new job may be handed back
+                last = None
+            if status is ControlStatus.BLOCKED and job is not None and last is None:
+                handbacks.append(Handback(robot, job, "blocked"))
+                self._handed_back[robot] = job
+            for announcement in announcements:
+                bid = self._bid(robot, obs, announcement)
+                if bid is not None:
+                    bids.append(bid)
+            # A cheap clock check per robot keeps a long OBSERVE from looking like silence.
+            if beat is not None and time.monotonic() - self._last_sent >= beat:
+                self._heartbeat(tick)
         self.stats["observations"] += len(commands)
-        self._send(MessageKind.ACT, msg.tick, {"commands": commands})
+        self.stats["bids"] += len(bids)
+        self.stats["handbacks"] += len(handbacks)
+        body = {"commands": commands, "bids": bids, "handbacks": handbacks}
+        self._send(MessageKind.ACT, tick, body)
 
-    def _compute(self, robot: str, obs: Observation) -> dict:
+    def _compute(self, robot: str, obs: Observation) -> tuple[dict, ControlStatus]:
+        """The command's wire form and status; braking (ERROR) if the controller failed."""
         controller = self.controllers[robot]
         try:
-            return command_to_wire(controller.compute(obs))
+            command = controller.compute(obs)
+            return command_to_wire(command), command.status
         except Exception as exc:  # a plugin may raise anything; the fleet must keep running
             self.stats["controller_errors"] += 1
             first = robot not in self._failed
@@ -339,7 +444,57 @@ class AgentHost:
                 " (further failures of this robot are logged at debug level)" if first else "",
                 exc_info=first,
             )
-            return command_to_wire(braking_command(controller, obs))
+            return command_to_wire(braking_command(controller, obs)), ControlStatus.ERROR
+
+    def _bid(self, robot: str, obs: Observation, job: Announcement) -> Bid | None:
+        """The robot's bid for `job`, or None (declined, failed or not a valid estimate)."""
+        controller = self.controllers[robot]
+        try:
+            estimate: Any = controller.bid(obs, job)
+        except Exception as exc:  # a plugin may raise anything; the fleet must keep running
+            self.stats["bid_errors"] += 1
+            self._bid_trouble(
+                robot,
+                f"controller {type(controller).__name__} failed to bid for job {job.job} at"
+                f" tick {obs.tick} ({type(exc).__name__}: {exc}); no bid",
+                exc_info=True,
+            )
+            return None
+        if estimate is None:
+            self.stats["bids_declined"] += 1
+            return None
+        try:
+            value = float(estimate) if not isinstance(estimate, bool | str) else math.nan
+        except (TypeError, ValueError, OverflowError):
+            value = math.nan
+        if not (math.isfinite(value) and value >= 0.0):
+            self.stats["bids_dropped"] += 1
+            self._bid_trouble(
+                robot,
+                f"controller {type(controller).__name__} bid {estimate!r} for job {job.job} at"
+                f" tick {obs.tick}: a bid must be a finite number of seconds >= 0 (or None to"
+                " decline); dropped",
+            )
+            return None
+        return Bid(job.job, robot, value)
+
+    def _bid_trouble(self, robot: str, what: str, exc_info: bool = False) -> None:
+        # Once per robot at warning level; later ones at debug level (they are counted).
+        first = robot not in self._bid_failed
+        self._bid_failed.add(robot)
+        self.log.log(
+            logging.WARNING if first else logging.DEBUG,
+            "agent %s: robot %s: %s%s",
+            self.name,
+            robot,
+            what,
+            " (further bid trouble of this robot is logged at debug level)" if first else "",
+            exc_info=exc_info and first,
+        )
+
+    def _heartbeat(self, tick: int | None = None) -> None:
+        self.stats["heartbeats"] += 1
+        self._send(MessageKind.HEARTBEAT, max(self.last_tick if tick is None else tick, 0), {})
 
     def _bye(self, msg: Message) -> None:
         if self.exchange is not None and msg.sender != self.exchange:
@@ -356,8 +511,12 @@ class AgentHost:
         try:
             self.socket.send(raw, _NOBLOCK)
         except zmq.ZMQError as exc:
-            self.log.warning("agent %s: could not send %s: %s", self.name, kind.name, exc)
+            # A heartbeat that cannot go out (the exchange gone or far behind) is retried soon
+            # anyway: not worth a warning every heartbeat_s.
+            level = logging.DEBUG if kind is MessageKind.HEARTBEAT else logging.WARNING
+            self.log.log(level, "agent %s: could not send %s: %s", self.name, kind.name, exc)
             return
+        self._last_sent = time.monotonic()
         self.stats["messages_sent"] += 1
 
     def _reject(self, why: str) -> None:

@@ -1,24 +1,30 @@
-"""The bus's wire schema: what the engine and the robot agents say to each other, version 3.
+"""The bus's wire schema: what the engine and the robot agents say to each other, version 4.
 
 Every message is one ZeroMQ frame holding one compact UTF-8 JSON object, the *envelope*::
 
-    {"version": 3, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
+    {"version": 4, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
 
 `kind` says what the body holds (see `MessageKind`); `tick` is the engine's control tick the
 message belongs to (0 for HELLO). Observations and commands travel as JSON objects whose fields
 are exactly those of `fleet.plugins.Observation` and `fleet.plugins.Command`; small fixed
-tuples travel as arrays: a goal is ``[x, y]``, a neighbour ``[robot, x, y, vx, vy]``, a plan
-sample ``[t, x, y]``, a speed-cap piece ``[start_s, end_s, cap]``, a solve report
-``[outcome, solver_s, step_s]``. (Version 2 added ``speed_caps`` and ``solve``, version 3
-``print_end_s``.) Every field
-is always present (``null`` where the dataclass holds None), so a message either matches the
-schema exactly or is rejected.
+tuples travel as arrays: a goal is ``[x, y]``, a neighbour
+``[robot, x, y, vx, vy, radius, priority, plan]``, a plan sample ``[t, x, y]``, a speed-cap
+piece ``[start_s, end_s, cap]``, a solve report ``[outcome, solver_s, step_s]``, an
+announcement ``[job, x, y, print_s, released_s, due_s]``, a bid ``[job, robot, estimate_s]``
+and a handback ``[robot, job, reason]``. Every field is always present (``null`` where the
+dataclass holds None), so a message either matches the schema exactly or is rejected.
+
+History: version 2 added ``speed_caps`` and ``solve``, version 3 ``print_end_s``; version 4
+(contract net and liveness) added the observation's ``priority``, ``blockers`` and ``queued``,
+the neighbour's radius, priority and plan, OBSERVE's ``announcements``, ACT's ``bids`` and
+``handbacks``, HELLO's ``scenario`` and the HEARTBEAT kind.
 
 `decode` trusts nothing: it checks the JSON, the version, the kind, every field's presence and
 type, that numbers are finite and that no field is extra, and raises `MessageError` saying what
 is wrong with the bad value quoted. It returns OBSERVE and ACT bodies already converted to
-`Observation` and `Command` objects, so each message is parsed and checked exactly once.
-Batching many robots into one message keeps the per-robot cost to a few microseconds.
+`fleet.plugins` objects (`Observation`, `Announcement`, `Command`, `Bid`, `Handback`), so each
+message is parsed and checked exactly once. Batching many robots into one message keeps the
+per-robot cost to a few microseconds.
 """
 
 from __future__ import annotations
@@ -27,12 +33,16 @@ import enum
 import json
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
+from itertools import chain
 from typing import Any
 
 from fleet.errors import MessageError
 from fleet.plugins import (
+    Announcement,
+    Bid,
     Command,
     ControlStatus,
+    Handback,
     Neighbour,
     Observation,
     SolveReport,
@@ -49,9 +59,12 @@ __all__ = [
     "observation_from_wire",
     "command_to_wire",
     "command_from_wire",
+    "announcement_to_wire",
+    "bid_to_wire",
+    "handback_to_wire",
 ]
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 """The version this build writes and the only one it reads."""
 
 
@@ -59,14 +72,22 @@ class MessageKind(enum.Enum):
     """What a message is for; the value is what travels in the envelope's ``kind``."""
 
     HELLO = "hello"
-    """Agent to engine, first message: ``{"robots": [robot, ...]}``, the robots it hosts."""
+    """Agent to engine, first message: ``{"robots": [robot, ...], "scenario": fingerprint}``,
+    the robots it hosts and the fingerprint of the scenario it was set up for (``""``: not
+    checked)."""
     WELCOME = "welcome"
     """Engine to agent, answer to HELLO: ``{"accepted": [robot, ...], "rejected": {robot: why}}``.
     """
     OBSERVE = "observe"
-    """Engine to agent, once per tick: ``{"t": seconds, "observations": [Observation, ...]}``."""
+    """Engine to agent, once per tick: ``{"t": seconds, "observations": [Observation, ...],
+    "announcements": [Announcement, ...]}``; the agent bids for the announced jobs on behalf of
+    the observed robots."""
     ACT = "act"
-    """Agent to engine, answer to the same tick's OBSERVE: ``{"commands": {robot: Command}}``."""
+    """Agent to engine, answer to the same tick's OBSERVE: ``{"commands": {robot: Command},
+    "bids": [Bid, ...], "handbacks": [Handback, ...]}``."""
+    HEARTBEAT = "heartbeat"
+    """Agent to engine, body ``{}``: "I am alive", sent while computing or idle so the engine
+    can tell a slow agent from a dead one."""
     BYE = "bye"
     """Either way, last message: ``{"reason": text}``; the sender is leaving."""
 
@@ -85,8 +106,9 @@ class Message:
         Control tick the message belongs to (>= 0).
     body:
         The body as documented on `MessageKind`: JSON values, except that OBSERVE's
-        ``observations`` is a list of `Observation` and ACT's ``commands`` maps robot ids to
-        `Command` objects.
+        ``observations`` and ``announcements`` are lists of `Observation` and `Announcement`,
+        ACT's ``commands`` maps robot ids to `Command` objects and its ``bids`` and
+        ``handbacks`` are lists of `Bid` and `Handback`.
     version:
         Schema version of the message (always `SCHEMA_VERSION` once decoded).
     """
@@ -131,17 +153,20 @@ else:  # pragma: no cover - Python builds without the _json accelerator
 def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -> bytes:
     """Serialise one message to compact UTF-8 JSON.
 
-    OBSERVE observations and ACT commands may be given as `Observation` / `Command` objects
-    (converted here) or as the dicts `observation_to_wire` / `command_to_wire` return; so
-    ``decode(encode(k, s, t, body)).body == body`` for a body written with the objects.
+    OBSERVE observations and announcements, and ACT commands, bids and handbacks, may be given
+    as `fleet.plugins` objects (converted here) or in their wire form (the dicts
+    `observation_to_wire` / `command_to_wire` return, the lists `announcement_to_wire`,
+    `bid_to_wire` / `handback_to_wire` return); so ``decode(encode(k, s, t, body)).body ==
+    body`` for a body written with the objects (and lists).
 
     Raises
     ------
     MessageError
         If `kind`, `sender` or `tick` is malformed, the body lacks a field of its kind or has
         one too many, ``observations`` is not a list of observations, ``commands`` is not a
-        mapping of robot ids to commands, a command is invalid, or the body holds a value JSON
-        cannot carry (NaN, infinity, a non-JSON type); the message names where.
+        mapping of robot ids to commands, a command, bid or handback is invalid, or the body
+        holds a value JSON cannot carry (NaN, infinity, a non-JSON type); the message names
+        where.
     """
     if not isinstance(kind, MessageKind):
         raise MessageError(f"cannot encode: kind = {_quote(kind)}: must be a MessageKind")
@@ -171,7 +196,10 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
                     o,
                     "must be a fleet.plugins.Observation or its wire dict",
                 )
-        body = {**body, "observations": wire}
+        announcements = _items_to_wire(
+            body["announcements"], Announcement, announcement_to_wire, f"{where}.announcements"
+        )
+        body = {**body, "observations": wire, "announcements": announcements}
     elif kind is MessageKind.ACT:
         items = body["commands"]
         if not isinstance(items, Mapping):
@@ -191,7 +219,11 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
                     c,
                     "must be a fleet.plugins.Command or its wire dict",
                 )
-        body = {**body, "commands": commands}
+        bids = _items_to_wire(body["bids"], Bid, bid_to_wire, f"{where}.bids")
+        handbacks = _items_to_wire(
+            body["handbacks"], Handback, handback_to_wire, f"{where}.handbacks"
+        )
+        body = {**body, "commands": commands, "bids": bids, "handbacks": handbacks}
     envelope = {
         "version": SCHEMA_VERSION,
         "kind": kind.value,
@@ -208,8 +240,32 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
         ) from exc
 
 
+def _items_to_wire(items: Any, cls: type, to_wire: Any, where: str) -> list:
+    """`items` (objects of `cls` or their wire lists) as wire lists, for `encode`."""
+    if not isinstance(items, list | tuple):
+        raise _fail(where, items, f"must be a list of fleet.plugins.{cls.__name__}")
+    wire = []
+    for i, item in enumerate(items):
+        if isinstance(item, cls):
+            try:
+                wire.append(to_wire(item))
+            except MessageError as exc:
+                raise MessageError(f"{where}[{i}]: {exc}") from None
+        elif type(item) is list:
+            wire.append(item)
+        else:
+            raise _fail(f"{where}[{i}]", item, f"must be a fleet.plugins.{cls.__name__} or a list")
+    return wire
+
+
 def observation_to_wire(o: Observation) -> dict[str, Any]:
-    """The JSON form of an observation (numbers coerced to plain float/int, e.g. from numpy)."""
+    """The JSON form of an observation (numbers coerced to plain float/int, e.g. from numpy).
+
+    A neighbour's plan goes out as it is (a tuple of ``(t, x, y)`` tuples): it is the plan
+    that robot's agent sent, already checked when it arrived, and copying thousands of
+    samples per tick would be most of the encoding time. A sample JSON cannot carry (NaN,
+    a numpy array) still makes `encode` fail, naming where.
+    """
     goal = o.goal
     return {
         "robot": o.robot,
@@ -223,10 +279,23 @@ def observation_to_wire(o: Observation) -> dict[str, Any]:
         "job": o.job,
         "speed_cap": None if o.speed_cap is None else float(o.speed_cap),
         "neighbours": [
-            [n.robot, float(n.x), float(n.y), float(n.vx), float(n.vy)] for n in o.neighbours
+            [
+                n.robot,
+                float(n.x),
+                float(n.y),
+                float(n.vx),
+                float(n.vy),
+                float(n.radius),
+                int(n.priority),
+                n.plan,
+            ]
+            for n in o.neighbours
         ],
         "speed_caps": [[float(a), float(b), float(c)] for a, b, c in o.speed_caps],
         "print_end_s": None if o.print_end_s is None else float(o.print_end_s),
+        "priority": int(o.priority),
+        "blockers": list(o.blockers),
+        "queued": int(o.queued),
     }
 
 
@@ -263,6 +332,60 @@ def command_to_wire(c: Command) -> dict[str, Any]:
     }
 
 
+def announcement_to_wire(a: Announcement) -> list[Any]:
+    """The JSON form of an announcement, ``[job, x, y, print_s, released_s, due_s]``.
+
+    Raises
+    ------
+    MessageError
+        If the job id is not a non-empty string, a number is not finite or `print_s` < 0.
+    """
+    _nonempty(a.job, "announcement", "job")
+    print_s = _number(a.print_s, "announcement", "print_s")
+    if print_s < 0:
+        raise _fail("announcement.print_s", a.print_s, "must be >= 0")
+    return [
+        a.job,
+        _number(a.x, "announcement", "x"),
+        _number(a.y, "announcement", "y"),
+        print_s,
+        _number(a.released_s, "announcement", "released_s"),
+        None if a.due_s is None else _number(a.due_s, "announcement", "due_s"),
+    ]
+
+
+def bid_to_wire(b: Bid) -> list[Any]:
+    """The JSON form of a bid, ``[job, robot, estimate_s]``, checked (bids come from plugins).
+
+    Raises
+    ------
+    MessageError
+        If the job or robot id is not a non-empty string, or the estimate is not a finite
+        number >= 0.
+    """
+    _nonempty(b.job, "bid", "job")
+    _nonempty(b.robot, "bid", "robot")
+    estimate = _number(b.estimate_s, "bid", "estimate_s")
+    if estimate < 0:
+        raise _fail("bid.estimate_s", b.estimate_s, "must be >= 0")
+    return [b.job, b.robot, estimate]
+
+
+def handback_to_wire(h: Handback) -> list[Any]:
+    """The JSON form of a handback, ``[robot, job, reason]``.
+
+    Raises
+    ------
+    MessageError
+        If the robot or job id is not a non-empty string, or the reason is not a string.
+    """
+    _nonempty(h.robot, "handback", "robot")
+    _nonempty(h.job, "handback", "job")
+    if type(h.reason) is not str:
+        raise _fail("handback.reason", h.reason, "must be a string")
+    return [h.robot, h.job, h.reason]
+
+
 # --- decoding ------------------------------------------------------------------------------------
 
 
@@ -297,13 +420,17 @@ _OBSERVATION_FIELDS = frozenset(
         "neighbours",
         "speed_caps",
         "print_end_s",
+        "priority",
+        "blockers",
+        "queued",
     )
 )
 _COMMAND_FIELDS = frozenset(("ax", "ay", "status", "plan", "solve"))
-_HELLO_FIELDS = frozenset(("robots",))
+_HELLO_FIELDS = frozenset(("robots", "scenario"))
 _WELCOME_FIELDS = frozenset(("accepted", "rejected"))
-_OBSERVE_FIELDS = frozenset(("t", "observations"))
-_ACT_FIELDS = frozenset(("commands",))
+_OBSERVE_FIELDS = frozenset(("t", "observations", "announcements"))
+_ACT_FIELDS = frozenset(("commands", "bids", "handbacks"))
+_HEARTBEAT_FIELDS: frozenset[str] = frozenset()
 _BYE_FIELDS = frozenset(("reason",))
 
 
@@ -320,7 +447,7 @@ def decode(raw: bytes, expect: Collection[MessageKind] | None = None) -> Message
     Returns
     -------
     Message
-        The message, with OBSERVE and ACT bodies converted to `Observation` / `Command`.
+        The message, with OBSERVE and ACT bodies converted to `fleet.plugins` objects.
 
     Raises
     ------
@@ -407,7 +534,10 @@ def command_from_wire(d: Any) -> Command:
 def _hello_body(body: dict[str, Any], where: str) -> dict[str, Any]:
     if body.keys() != _HELLO_FIELDS:
         _check_fields(body, f"{where}: body", _HELLO_FIELDS)
-    return {"robots": _robot_list(body["robots"], f"{where}: body.robots")}
+    scenario = body["scenario"]
+    if type(scenario) is not str:
+        raise _fail(f"{where}: body.scenario", scenario, "must be a string ('' when unchecked)")
+    return {"robots": _robot_list(body["robots"], f"{where}: body.robots"), "scenario": scenario}
 
 
 def _welcome_body(body: dict[str, Any], where: str) -> dict[str, Any]:
@@ -436,7 +566,17 @@ def _observe_body(body: dict[str, Any], where: str) -> dict[str, Any]:
         raise _fail(f"{where}: body.observations", items, "must be an array of observations")
     prefix = f"{where}: body.observations"
     observations = [_observation(d, prefix, i) for i, d in enumerate(items)]
-    return {"t": t, "observations": observations}
+    announcements = body["announcements"]
+    if type(announcements) is not list:
+        raise _fail(
+            f"{where}: body.announcements", announcements, "must be an array of announcements"
+        )
+    prefix = f"{where}: body.announcements"
+    return {
+        "t": t,
+        "observations": observations,
+        "announcements": [_announcement(a, f"{prefix}[{i}]") for i, a in enumerate(announcements)],
+    }
 
 
 def _act_body(body: dict[str, Any], where: str) -> dict[str, Any]:
@@ -451,7 +591,26 @@ def _act_body(body: dict[str, Any], where: str) -> dict[str, Any]:
         if not robot:
             raise _fail(prefix, robot, "robot ids must be non-empty")
         commands[robot] = _command(d, prefix, robot)
-    return {"commands": commands}
+    bids = body["bids"]
+    if type(bids) is not list:
+        raise _fail(f"{where}: body.bids", bids, "must be an array of [job, robot, estimate_s]")
+    handbacks = body["handbacks"]
+    if type(handbacks) is not list:
+        raise _fail(
+            f"{where}: body.handbacks", handbacks, "must be an array of [robot, job, reason]"
+        )
+    prefix = f"{where}: body"
+    return {
+        "commands": commands,
+        "bids": [_bid(b, f"{prefix}.bids[{i}]") for i, b in enumerate(bids)],
+        "handbacks": [_handback(h, f"{prefix}.handbacks[{i}]") for i, h in enumerate(handbacks)],
+    }
+
+
+def _heartbeat_body(body: dict[str, Any], where: str) -> dict[str, Any]:
+    if body:
+        _check_fields(body, f"{where}: body", _HEARTBEAT_FIELDS)
+    return {}
 
 
 def _bye_body(body: dict[str, Any], where: str) -> dict[str, Any]:
@@ -468,6 +627,7 @@ _BODY_FIELDS = {
     MessageKind.WELCOME: _WELCOME_FIELDS,
     MessageKind.OBSERVE: _OBSERVE_FIELDS,
     MessageKind.ACT: _ACT_FIELDS,
+    MessageKind.HEARTBEAT: _HEARTBEAT_FIELDS,
     MessageKind.BYE: _BYE_FIELDS,
 }
 
@@ -476,6 +636,7 @@ _BODY_READERS = {
     MessageKind.WELCOME: _welcome_body,
     MessageKind.OBSERVE: _observe_body,
     MessageKind.ACT: _act_body,
+    MessageKind.HEARTBEAT: _heartbeat_body,
     MessageKind.BYE: _bye_body,
 }
 
@@ -517,6 +678,18 @@ def _observation(d: Any, prefix: str, index: int | None = None) -> Observation:
     print_end = d["print_end_s"]
     if print_end is not None:
         print_end = _number(print_end, prefix, "print_end_s", index)
+    priority = d["priority"]
+    if type(priority) is not int:
+        raise _fail(f"{_at(prefix, index)}.priority", priority, "must be an integer")
+    queued = d["queued"]
+    if type(queued) is not int or queued < 0:
+        raise _fail(f"{_at(prefix, index)}.queued", queued, "must be an integer >= 0")
+    blockers = d["blockers"]
+    if type(blockers) is not list:
+        raise _fail(f"{_at(prefix, index)}.blockers", blockers, "must be an array of robot ids")
+    for b in blockers:
+        if type(b) is not str or not b:
+            raise _fail(f"{_at(prefix, index)}.blockers", b, "robot ids must be non-empty strings")
     t, x, y, vx, vy = d["t"], d["x"], d["y"], d["vx"], d["vy"]
     # Fast path: all plain floats, and x - x == 0.0 only for finite x (inf and nan give nan).
     if (
@@ -543,11 +716,12 @@ def _observation(d: Any, prefix: str, index: int | None = None) -> Observation:
         goal,
         job,
         cap,
-        tuple([_neighbour(n, prefix, index, j) for j, n in enumerate(neighbours)])
-        if neighbours
-        else (),
+        _neighbours(neighbours, prefix, index) if neighbours else (),
         _cap_pieces(caps, f"{_at(prefix, index)}.speed_caps") if caps else (),
         print_end,
+        priority,
+        tuple(blockers),
+        queued,
     )
 
 
@@ -569,23 +743,145 @@ def _cap_pieces(caps: list, where: str) -> tuple[tuple[float, float, float], ...
     return tuple(out)
 
 
-def _neighbour(n: Any, prefix: str, index: int | None, j: int) -> Neighbour:
-    if type(n) is not list or len(n) != 5 or type(n[0]) is not str or not n[0]:
-        raise _fail(f"{_at(prefix, index)}.neighbours[{j}]", n, "must be [robot, x, y, vx, vy]")
-    robot, x, y, vx, vy = n
-    if (
-        type(x) is not float
-        or type(y) is not float
-        or type(vx) is not float
-        or type(vy) is not float
-        or x - x + y - y + vx - vx + vy - vy != 0.0
-    ):
-        name = f"neighbours[{j}]"
-        x = _number(x, prefix, name, index)
-        y = _number(y, prefix, name, index)
-        vx = _number(vx, prefix, name, index)
-        vy = _number(vy, prefix, name, index)
-    return Neighbour(robot, x, y, vx, vy)
+_NEIGHBOUR_RULE = "must be [robot, x, y, vx, vy, radius, priority, plan]"
+
+
+def _neighbours(items: list, prefix: str, index: int | None) -> tuple[Neighbour, ...]:
+    # The scalars one neighbour at a time, then every plan sample of the observation in one
+    # batch: with eight neighbours of ten samples each, the samples are most of an OBSERVE.
+    rows = []
+    plans = []
+    for j, n in enumerate(items):
+        if type(n) is not list or len(n) != 8:
+            raise _fail(f"{_at(prefix, index)}.neighbours[{j}]", n, _NEIGHBOUR_RULE)
+        robot, x, y, vx, vy, radius, priority, plan = n
+        # Fast path: plain floats, finite (x - x == 0.0 only for finite x), radius > 0.
+        if (
+            type(robot) is not str
+            or not robot
+            or type(x) is not float
+            or type(y) is not float
+            or type(vx) is not float
+            or type(vy) is not float
+            or type(radius) is not float
+            or x - x + y - y + vx - vx + vy - vy + radius - radius != 0.0
+            or not radius > 0.0
+            or type(priority) is not int
+            or type(plan) is not list
+        ):
+            robot, x, y, vx, vy, radius, priority, plan = _neighbour(n, prefix, index, j)
+        rows.append((robot, x, y, vx, vy, radius, priority))
+        plans.append(plan)
+    if _plain_samples(list(chain.from_iterable(plans))):
+        return tuple(
+            [
+                Neighbour(r, x, y, vx, vy, rad, pr, tuple(map(tuple, plan)) if plan else ())
+                for (r, x, y, vx, vy, rad, pr), plan in zip(rows, plans, strict=True)
+            ]
+        )
+    # Exact path: some sample is malformed (say which) or holds ints (convert them).
+    return tuple(
+        [
+            Neighbour(*row, _samples(plan, f"{_at(prefix, index)}.neighbours[{j}].plan"))
+            for j, (row, plan) in enumerate(zip(rows, plans, strict=True))
+        ]
+    )
+
+
+def _neighbour(n: list, prefix: str, index: int | None, j: int) -> list:
+    """The fields of one wire neighbour that failed the fast check: converted, or an error."""
+    robot, x, y, vx, vy, radius, priority, plan = n
+    if type(robot) is not str or not robot:
+        raise _fail(f"{_at(prefix, index)}.neighbours[{j}]", n, _NEIGHBOUR_RULE)
+    name = f"neighbours[{j}]"
+    x = _number(x, prefix, name, index)
+    y = _number(y, prefix, name, index)
+    vx = _number(vx, prefix, name, index)
+    vy = _number(vy, prefix, name, index)
+    radius = _number(radius, prefix, name, index)
+    if not radius > 0.0:
+        raise _fail(f"{_at(prefix, index)}.neighbours[{j}].radius", radius, "must be > 0")
+    if type(priority) is not int:
+        raise _fail(
+            f"{_at(prefix, index)}.neighbours[{j}].priority", priority, "must be an integer"
+        )
+    if type(plan) is not list:
+        raise _fail(
+            f"{_at(prefix, index)}.neighbours[{j}].plan", plan, "must be an array of [t, x, y]"
+        )
+    return [robot, x, y, vx, vy, radius, priority, plan]
+
+
+def _plain_samples(samples: list) -> bool:
+    """Whether every item is a list of three floats, all finite (a few C-level passes instead
+    of a Python loop per sample)."""
+    if not samples:
+        return True
+    if set(map(type, samples)) != _LIST_TYPE or set(map(len, samples)) != _THREE:
+        return False
+    flat = list(chain.from_iterable(samples))
+    if set(map(type, flat)) != _FLOAT_TYPE:
+        return False
+    # inf or nan if any value is; a sum that merely overflows sends valid samples down the
+    # exact path, which accepts them.
+    total = sum(flat)
+    return total - total == 0.0
+
+
+def _samples(plan: list, where: str) -> tuple[tuple[float, float, float], ...]:
+    """A JSON array of ``[t, x, y]`` as a tuple of float triples."""
+    if _plain_samples(plan):
+        return tuple(map(tuple, plan))
+    return tuple([_triple(p, where, i) for i, p in enumerate(plan)])
+
+
+_LIST_TYPE = {list}
+_FLOAT_TYPE = {float}
+_THREE = {3}
+
+
+def _announcement(a: Any, where: str) -> Announcement:
+    if type(a) is not list or len(a) != 6:
+        raise _fail(where, a, "must be [job, x, y, print_s, released_s, due_s]")
+    job, x, y, print_s, released_s, due_s = a
+    if type(job) is not str or not job:
+        raise _fail(f"{where}[0]", job, "the job id must be a non-empty string")
+    x = _number(x, where, "[1]")
+    y = _number(y, where, "[2]")
+    print_s = _number(print_s, where, "[3]")
+    if print_s < 0:
+        raise _fail(f"{where}[3]", print_s, "print_s must be >= 0")
+    released_s = _number(released_s, where, "[4]")
+    if due_s is not None:
+        due_s = _number(due_s, where, "[5]")
+    return Announcement(job, x, y, print_s, released_s, due_s)
+
+
+def _bid(b: Any, where: str) -> Bid:
+    if type(b) is not list or len(b) != 3:
+        raise _fail(where, b, "must be [job, robot, estimate_s]")
+    job, robot, estimate = b
+    if type(job) is not str or not job:
+        raise _fail(f"{where}[0]", job, "the job id must be a non-empty string")
+    if type(robot) is not str or not robot:
+        raise _fail(f"{where}[1]", robot, "the robot id must be a non-empty string")
+    estimate = _number(estimate, where, "[2]")
+    if estimate < 0:
+        raise _fail(f"{where}[2]", estimate, "estimate_s must be >= 0")
+    return Bid(job, robot, estimate)
+
+
+def _handback(h: Any, where: str) -> Handback:
+    if type(h) is not list or len(h) != 3:
+        raise _fail(where, h, "must be [robot, job, reason]")
+    robot, job, reason = h
+    if type(robot) is not str or not robot:
+        raise _fail(f"{where}[0]", robot, "the robot id must be a non-empty string")
+    if type(job) is not str or not job:
+        raise _fail(f"{where}[1]", job, "the job id must be a non-empty string")
+    if type(reason) is not str:
+        raise _fail(f"{where}[2]", reason, "the reason must be a string")
+    return Handback(robot, job, reason)
 
 
 def _command(d: Any, prefix: str, key: str | None = None) -> Command:
@@ -653,6 +949,11 @@ def _number(v: Any, prefix: str, name: str, index: int | None = None) -> float:
             pass
     sep = "" if name.startswith("[") else "."
     raise _fail(f"{_at(prefix, index)}{sep}{name}", v, "must be a finite number")
+
+
+def _nonempty(v: Any, prefix: str, name: str) -> None:
+    if type(v) is not str or not v:
+        raise _fail(f"{prefix}.{name}", v, "must be a non-empty string")
 
 
 def _robot_list(robots: Any, where: str) -> list[str]:

@@ -20,17 +20,25 @@ queues a connect until the bind arrives; checked with libzmq 4.3.5).
 Every DEALER carries a fixed routing id (the agent's name), so the ROUTER knows an agent again
 after ZeroMQ re-establishes a dropped connection; the ROUTER hands the id over to the newest
 connection (``ROUTER_HANDOVER``).
+
+Over ipc and tcp the bus can be secured with CurveZMQ (`fleet.bus.security`): `bind_router`
+takes the engine's `ServerCurve`, `connect_dealer` an agent's `ClientCurve`. Connections are
+then encrypted and only authorised agents get through; the others are refused, logged and
+counted by the ROUTER's `CurveGuard` (``socket.curve_guard``). inproc has no security
+handshake in libzmq, so keys there are refused rather than silently ignored.
 """
 
 from __future__ import annotations
 
 import itertools
+import logging
 import os
 import re
 from dataclasses import dataclass
 
 import zmq
 
+from fleet.bus.security import ClientCurve, CurveGuard, ServerCurve
 from fleet.errors import MessageError
 
 __all__ = [
@@ -41,6 +49,7 @@ __all__ = [
     "default_context",
     "bind_router",
     "connect_dealer",
+    "GuardedSocket",
     "LINGER_MS",
     "ROUTING_ID_MAX",
 ]
@@ -147,37 +156,103 @@ def default_context() -> zmq.Context:
     return zmq.Context.instance()
 
 
-def bind_router(context: zmq.Context, address: str) -> tuple[zmq.Socket, str]:
+class GuardedSocket(zmq.Socket):
+    """A ROUTER bound with CURVE keys: it holds its `CurveGuard` and stops it when closed.
+
+    The guard (the ZAP handler that refuses unauthorised agents) thus lives exactly as long
+    as the socket needs it; a CURVE server left without one would admit any client.
+    """
+
+    #: The guard enforcing the socket's `ServerCurve`; None once the socket is closed.
+    curve_guard: CurveGuard | None = None
+
+    def close(self, linger: int | None = None) -> None:
+        """Close the socket, then stop its guard."""
+        try:
+            super().close(linger=linger)
+        finally:
+            guard, self.curve_guard = self.curve_guard, None
+            if guard is not None:
+                guard.stop()
+
+
+def bind_router(
+    context: zmq.Context,
+    address: str,
+    *,
+    curve: ServerCurve | None = None,
+    log: logging.Logger | None = None,
+) -> tuple[zmq.Socket, str]:
     """A ROUTER socket bound to `address`, and the address actually bound (port resolved).
 
     The socket reports unroutable sends (``ROUTER_MANDATORY``: EHOSTUNREACH for an unknown
     peer, EAGAIN for a full queue) instead of dropping them, so the exchange notices agents that
     have gone; a reconnecting agent takes its routing id over (``ROUTER_HANDOVER``).
 
+    Parameters
+    ----------
+    context:
+        The ZeroMQ context.
+    address:
+        Where to bind (see `parse_address`).
+    curve:
+        The engine's CURVE keys; None for no security. With keys the socket is a
+        `GuardedSocket`: a `CurveGuard` (started on `context` before the bind, so that no
+        client slips in unchecked) admits only the authorised agents and stops when the socket
+        is closed. Only for ipc and tcp.
+    log:
+        Where the guard logs refusals; default ``fleet.bus``.
+
     Raises
     ------
     AddressError
-        If the address is malformed or cannot be bound (in use, missing directory, ...).
+        If the address is malformed or cannot be bound (in use, missing directory, ...), or
+        `curve` is given for inproc.
+    SecurityError
+        If the guard cannot start (another ZAP handler serves `context`).
     """
     parsed = parse_address(address, bind=True)
-    sock = context.socket(zmq.ROUTER)
+    if curve is not None:
+        _check_curve(curve, ServerCurve, parsed, address, "bind_router")
+    log = log if log is not None else logging.getLogger("fleet.bus")
+    sock = context.socket(zmq.ROUTER, socket_class=GuardedSocket if curve else None)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
     sock.setsockopt(zmq.ROUTER_HANDOVER, 1)
     if parsed.ipv6:
         # Without it libzmq resolves only IPv4 and binding '[::1]' fails with "No such device".
         sock.setsockopt(zmq.IPV6, 1)
+    if curve is not None:
+        try:
+            curve.apply(sock)
+            sock.curve_guard = curve.start(context, log)
+            sock.curve_guard.watch(sock)
+        except BaseException:
+            sock.close(linger=0)
+            raise
     try:
         sock.bind(str(parsed))
     except zmq.ZMQError as exc:
         sock.close(linger=0)
         raise AddressError(f"cannot bind the bus to {address!r}: {exc.strerror}") from None
     endpoint = sock.getsockopt(zmq.LAST_ENDPOINT)
-    return sock, endpoint.decode() if isinstance(endpoint, bytes) else str(endpoint)
+    bound = endpoint.decode() if isinstance(endpoint, bytes) else str(endpoint)
+    if curve is not None:
+        log.info(
+            "bus: %s requires CURVE; authorised agent keys: %d in %s",
+            bound,
+            len(curve.authorized_keys),
+            curve.authorized,
+        )
+    return sock, bound
 
 
 def connect_dealer(
-    context: zmq.Context, address: str, routing_id: bytes | None = None
+    context: zmq.Context,
+    address: str,
+    routing_id: bytes | None = None,
+    *,
+    curve: ClientCurve | None = None,
 ) -> zmq.Socket:
     """A DEALER socket connected to `address` (connecting succeeds before the peer is up).
 
@@ -191,15 +266,21 @@ def connect_dealer(
         The identity the ROUTER sees, kept across reconnections: 1 to `ROUTING_ID_MAX` bytes,
         not starting with a zero byte (ZeroMQ reserves those for ids it makes up). None lets
         ZeroMQ pick a fresh one per connection.
+    curve:
+        The agent's CURVE keys, for a ROUTER bound with a `ServerCurve`; only for ipc and tcp.
+        If the engine refuses them nothing is delivered and the socket stays silent (the
+        engine logs the refusal), as with any peer that never answers.
 
     Raises
     ------
     AddressError
-        If the address is malformed or cannot be connected to.
+        If the address is malformed or cannot be connected to, or `curve` is given for inproc.
     ValueError
         If `routing_id` breaks the rules above.
     """
     parsed = parse_address(address, bind=False)
+    if curve is not None:
+        _check_curve(curve, ClientCurve, parsed, address, "connect_dealer")
     if routing_id is not None and not (
         isinstance(routing_id, bytes) and 0 < len(routing_id) <= ROUTING_ID_MAX and routing_id[0]
     ):
@@ -213,9 +294,23 @@ def connect_dealer(
         sock.setsockopt(zmq.ROUTING_ID, routing_id)
     if parsed.ipv6:
         sock.setsockopt(zmq.IPV6, 1)
+    if curve is not None:
+        curve.apply(sock)
     try:
         sock.connect(str(parsed))
     except zmq.ZMQError as exc:
         sock.close(linger=0)
         raise AddressError(f"cannot connect the bus to {address!r}: {exc.strerror}") from None
     return sock
+
+
+def _check_curve(curve: object, kind: type, parsed: Address, address: str, where: str) -> None:
+    if not isinstance(curve, kind):
+        raise TypeError(f"{where}: curve must be a {kind.__name__} or None, not {curve!r}")
+    if parsed.transport == "inproc":
+        # libzmq runs no security handshake on inproc: the keys would be silently ignored.
+        raise AddressError(
+            f"bus address {address!r}: CURVE security is not supported over inproc (libzmq"
+            " runs no handshake there; everything in one process is trusted anyway); use"
+            " 'ipc://<path>' or 'tcp://<host>:<port>', or give no keys"
+        )

@@ -48,6 +48,13 @@ class JobRecord:
     turned_rad: float = 0.0
     #: The predicted quality of the printed part, once the print has finished.
     quality: QualityPrediction | None = None
+    #: How often robots handed the job back (blocked, or their agent failed).
+    handbacks: int = 0
+    #: Robots that handed the job back: they do not win it again in an auction.
+    handed_back_by: set[str] = field(default_factory=set)
+    #: When and why the job was given up (too many hand-backs); None while it is not.
+    failed_s: float | None = None
+    failure: str | None = None
 
     @property
     def print_end_s(self) -> float | None:
@@ -76,8 +83,8 @@ class JobRecord:
 
     @property
     def open(self) -> bool:
-        """Released and not yet assigned."""
-        return self.robot is None
+        """Released, not assigned, and not given up."""
+        return self.robot is None and self.failed_s is None
 
     @property
     def lead_time_s(self) -> float | None:

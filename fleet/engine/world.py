@@ -14,6 +14,7 @@ from __future__ import annotations
 import bisect
 import logging
 import math
+import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable
@@ -26,16 +27,24 @@ import numpy as np
 import simpy
 
 from fleet.bus import AgentHost, Exchange
+from fleet.engine.agents import (
+    WorkerPool,
+    build_controllers,
+    load_run_floor,
+    robot_specs,
+    scenario_fingerprint,
+)
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
 from fleet.errors import FleetError, GcodeError, NoPathError, PluginError, ScenarioError
-from fleet.floor import Floor, load_floor, load_spec, slow_on_rough
+from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import (
     CAP_LOOKAHEAD_S,
+    Announcement,
     Assignment,
+    Bid,
     Command,
-    ControllerContext,
     ControlStatus,
     DispatchContext,
     Neighbour,
@@ -43,7 +52,6 @@ from fleet.plugins import (
     RobotSpec,
     RobotStatus,
     SolveReport,
-    load_controller,
     load_dispatcher,
 )
 from fleet.printing import CapSchedule, PrintSchedule, PrintTask
@@ -64,6 +72,20 @@ REST_SPEED = 1e-3
 MAX_NEIGHBOURS = 8
 #: Course changes (rad) smaller than this need no turn in place.
 TURN_EPSILON = 1e-3
+#: How often (s) open jobs nobody won are announced again (auctions).
+REANNOUNCE_S = 5.0
+#: A robot that got no closer to its goal than this (m) over `Scenario.deadlock_after_s` has
+#: made no progress.
+PROGRESS_M = 0.25
+#: Robots closer than the sum of their radii plus this (m) to a stalled robot may block it.
+BLOCKING_GAP_M = 1.0
+#: How long (s) a plan stays news: a neighbour whose latest plan ended longer ago than this is
+#: shown without one (assume it stays where it is).
+PLAN_STALE_S = 1.0
+#: Neighbours see plans thinned to samples this far apart (s): each plan goes into up to
+#: `MAX_NEIGHBOURS` observations, and between samples a robot at most 0.5 m/s^2 strays
+#: a * dt^2 / 8 = 0.016 m from the chord.
+PLAN_SPACING_S = 0.5
 
 
 @dataclass(slots=True)
@@ -82,10 +104,14 @@ class RobotState:
     ay: float = 0.0
     tick: int = 0
     job: JobRecord | None = None
+    #: Jobs awarded while busy (auctions), taken up in order after the current one.
+    queue: list[JobRecord] = field(default_factory=list)
     jobs_completed: int = 0
     return_home: bool = True
-    #: The latest plan the robot's controller sent, ``(t, x, y)`` samples (empty: none yet).
+    #: The latest plan the robot's controller sent, ``(t, x, y)`` samples (empty: none yet),
+    #: and the same thinned to `PLAN_SPACING_S` for the neighbours' observations.
     plan: tuple[tuple[float, float, float], ...] = ()
+    thinned_plan: tuple[tuple[float, float, float], ...] = ()
     #: Print caps of the jobs this robot has finished (the current job's are in `job.caps`).
     past_caps: list[tuple[float, float, float]] = field(default_factory=list)
     #: Turning in place (`RobotsConfig.turn_radius_m`): angular speed (rad/s; None: the robot
@@ -96,6 +122,19 @@ class RobotState:
     heading: float | None = None
     turning_until: float = -math.inf
     turned_rad: float = 0.0
+    #: Unique rank among the robots (higher goes first), before deadlock boosts.
+    rank: int = 0
+    #: Its agent is gone (lost or left): the robot is braked and takes no jobs until an agent
+    #: hosts it again.
+    faulted: bool = False
+    #: Progress watch for deadlock detection: closest distance to the current goal so far, and
+    #: when it last improved by `PROGRESS_M`.
+    best_gap: float = math.inf
+    progress_s: float = 0.0
+    watched_goal: tuple[float, float] | None = None
+    #: Robots found blocking this one (deadlock), and until when its priority is raised.
+    blockers: tuple[str, ...] = ()
+    boosted_until: float = -math.inf
 
     def caps(self) -> CapSchedule:
         """Every print-cap piece this robot has been under so far (for the safety checker)."""
@@ -134,9 +173,20 @@ class World:
         A compiled floor; loaded from ``scenario.map`` when omitted.
     """
 
-    def __init__(self, scenario: Scenario, floor: Floor | None = None) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        floor: Floor | None = None,
+        *,
+        workers: int = 0,
+        remote: bool = False,
+        curve: Any = None,
+        agent_wait_s: float = 120.0,
+    ) -> None:
+        if not isinstance(workers, int) or isinstance(workers, bool) or workers < 0:
+            raise ValueError(f"workers = {workers!r}: must be an integer >= 0")
         self.scenario = scenario
-        self.floor = _load_floor(scenario, floor)
+        self.floor = load_run_floor(scenario, floor)
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
@@ -146,16 +196,15 @@ class World:
             for n, members in enumerate(nx.connected_components(self.floor.graph))
             for region in members
         }
-        total = sum(g.count for g in scenario.robots)
-        width = max(2, len(str(total)))
         homes = self._start_positions()
         self.robots: dict[str, RobotState] = {}
+        ids = iter(robot_specs(scenario))
         for group in scenario.robots:
             spec = RobotSpec(group.v_max, group.a_max, group.radius, group.period_s)
             model = DoubleIntegrator(group.period_s, group.a_max)
             rate = None if group.turn_radius_m is None else group.v_max / group.turn_radius_m
             for _ in range(group.count):
-                rid = f"r{len(self.robots) + 1:0{width}d}"
+                rid = next(ids)
                 hx, hy = homes[len(self.robots)]
                 self.robots[rid] = RobotState(
                     rid,
@@ -168,6 +217,9 @@ class World:
                     turn_rate=rate,
                     turn_settle_s=group.turn_settle_s,
                 )
+        # Smaller ids go first among robots of equal standing.
+        for n, r in enumerate(self.robots.values()):
+            r.rank = len(self.robots) - n
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
         self.recorder = Recorder(list(self.robots))
@@ -178,26 +230,48 @@ class World:
         self.part_tasks = self._analyse_parts()
         self.quality = _quality_model(scenario)
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
+        # Duck-typed dispatchers (not subclassing Dispatcher) are plain assigners.
+        self._auction = bool(getattr(self.dispatcher, "announces", False))
         self.stats: dict[str, int] = defaultdict(int)
         self.solves: list[SolveReport] = []
 
-        controllers = {}
-        for rid, robot in self.robots.items():
-            c = self._plugin("controller", load_controller)
-            context = ControllerContext(rid, robot.spec, self.floor, self.planner_for(robot.spec))
-            try:
-                c.reset(context)
-            except (TypeError, ValueError) as exc:  # options that do not suit this robot
-                choice = scenario.controller
-                raise PluginError(
-                    f"{scenario.source}: [controller] name = {choice.name!r}, "
-                    f"options = {choice.options!r}: {exc}"
-                ) from None
-            controllers[rid] = c
-        self.exchange = Exchange(scenario.bus_address)
-        self.host = AgentHost(self.exchange.address, controllers, name="local")
-        self.exchange.add_local(self.host)
-        self.exchange.wait_for_agents(list(self.robots))
+        #: Faults seen on the bus: agents lost or gone, robots orphaned, agents that rejoined.
+        self.faults: dict[str, int] = dict.fromkeys(
+            ("agents_lost", "agents_left", "robots_orphaned", "robots_rejoined"), 0
+        )
+        self.workers: WorkerPool | None = None
+        self.host: AgentHost | None = None
+        self._tmpdir: tempfile.TemporaryDirectory | None = None
+        fingerprint = scenario_fingerprint(scenario)
+        address = scenario.bus_address
+        if workers and (address is None or address.startswith("inproc://")):
+            # Worker processes need a real socket: a private ipc path.
+            self._tmpdir = tempfile.TemporaryDirectory(prefix="fleet-bus-")
+            address = f"ipc://{self._tmpdir.name}/bus"
+        bus = scenario.bus
+        self.exchange = Exchange(
+            address,
+            timeout_s=bus.timeout_s,
+            lost_after_s=bus.lost_after_s,
+            scenario=fingerprint,
+            **({"curve": curve} if curve is not None else {}),
+        )
+        try:
+            if workers:
+                self.workers = WorkerPool(scenario, self.exchange.address, workers)
+            elif not remote:
+                controllers = build_controllers(
+                    scenario, self.floor, list(self.robots), self.planner_for
+                )
+                self.host = AgentHost(
+                    self.exchange.address, controllers, name="local", scenario=fingerprint
+                )
+                self.exchange.add_local(self.host)
+            self.exchange.wait_for_agents(list(self.robots), agent_wait_s)
+        except BaseException:
+            self._close_bus()
+            raise
+        self.exchange.take_events()  # the agents joining before the start are no faults
 
         self._ran = False
         #: The run's outcome once `run` has returned.
@@ -206,6 +280,9 @@ class World:
         self._round = 0
         self._dispatch_scheduled = False
         self._idle_since: dict[str, float] = {}
+        #: Jobs to announce at the next bus round (auctions), and when each was last announced.
+        self._announce: set[str] = set()
+        self._announced_s: dict[str, float] = {}
 
     # -- set-up ---------------------------------------------------------------------------------
     def _plugin(self, kind: str, loader: Callable[..., Any]) -> Any:
@@ -409,17 +486,20 @@ class World:
         t = self.env.now
         observations = self._observe([r for r, _ in pending], t)
         self._round += 1
-        commands = self.exchange.round(self._round, t, observations)
+        announcements = self._announcements(t)
+        commands = self.exchange.round(self._round, t, observations, announcements)
         for (robot, ev), obs in zip(pending, observations, strict=True):
             cmd = commands.get(robot.id)
             if cmd is None:
                 self.stats["commands_missing"] += 1
                 ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
                 cmd = Command(ax, ay, ControlStatus.ERROR)
+                robot.plan = robot.thinned_plan = ()  # braking, not following its plan
             elif cmd.status is not ControlStatus.OK:
                 self.stats[f"commands_{cmd.status.value}"] += 1
             if cmd.plan:
                 robot.plan = cmd.plan  # an empty plan means the previous one still holds
+                robot.thinned_plan = _thin(cmd.plan, PLAN_SPACING_S)
                 self.recorder.plan(robot.id, t, cmd.plan)
             if cmd.solve is not None:
                 self.solves.append(cmd.solve)
@@ -430,10 +510,117 @@ class World:
                 robot.job.started_s = t
                 self.recorder.event(t, "started", robot.job.job.id, robot.id, robot.job.job.station)
             ev.succeed(cmd)
+        self._after_round(t, announcements)
+
+    def _announcements(self, t: float) -> list[Announcement]:
+        """Open jobs to offer in this round: new or handed back ones, and every `REANNOUNCE_S`
+        the ones nobody won."""
+        if not self._auction:
+            return []
+        out = []
+        for rec in self.jobs:
+            jid = rec.job.id
+            if not rec.open:
+                continue
+            if jid not in self._announce and t < self._announced_s.get(jid, -math.inf) + (
+                REANNOUNCE_S - 1e-9
+            ):
+                continue
+            self._announced_s[jid] = t
+            job = rec.job
+            print_s = rec.tasks[-1].end_s if rec.tasks else 0.0
+            out.append(Announcement(jid, job.x, job.y, print_s, job.released_s, job.due_s))
+        self._announce.clear()
+        self.stats["announcements"] += len(out)
+        return out
+
+    def _after_round(self, t: float, announcements: list[Announcement]) -> None:
+        """Bids, hand-backs and agents coming and going, as the round brought them."""
+        exchange = self.exchange
+        for hb in exchange.handbacks:
+            robot = self.robots.get(hb.robot)
+            rec = next((r for r in self.jobs if r.job.id == hb.job), None)
+            if robot is None or rec is None or rec.robot != robot.id:
+                self.stats["handbacks_rejected"] += 1
+                log.warning(
+                    "agent handed back job %s of robot %s, not its own; ignored", hb.job, hb.robot
+                )
+                continue
+            self._hand_back(robot, rec, f"handed back: {hb.reason}")
+        for event in exchange.take_events():
+            self._bus_event(event)
+        if announcements:
+            self._award(list(exchange.bids))
+
+    def _bus_event(self, event: Any) -> None:
+        """An agent left, was lost or (re)joined: orphan its robots, or take them back."""
+        t = self.env.now
+        robots = [self.robots[r] for r in event.robots if r in self.robots]
+        if event.kind in ("lost", "left"):
+            self.faults["agents_lost" if event.kind == "lost" else "agents_left"] += 1
+            log.warning(
+                "t = %.2f s: agent %s %s (%s); braking robots %s",
+                t,
+                event.agent,
+                event.kind,
+                event.reason,
+                [r.id for r in robots],
+            )
+            for robot in robots:
+                if robot.faulted:
+                    continue
+                robot.faulted = True
+                robot.plan = robot.thinned_plan = ()
+                self.faults["robots_orphaned"] += 1
+                self.recorder.event(t, "fault", "", robot.id, event.agent)
+                for rec in [*robot.queue, *([robot.job] if robot.job else [])]:
+                    self._hand_back(robot, rec, f"agent {event.agent} {event.kind}")
+        elif event.kind == "joined":
+            for robot in robots:
+                if robot.faulted:
+                    robot.faulted = False
+                    self.faults["robots_rejoined"] += 1
+                    self.recorder.event(t, "rejoined", "", robot.id, event.agent)
+            self._request_dispatch()
+
+    def _hand_back(self, robot: RobotState, rec: JobRecord, reason: str) -> None:
+        """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
+
+        A print under way is lost with the hand-back: the next robot prints the part anew.
+        """
+        t = self.env.now
+        if rec is robot.job:
+            robot.job = robot.queue.pop(0) if robot.queue else None
+        elif rec in robot.queue:
+            robot.queue.remove(rec)
+        else:
+            return
+        # The caps the robot printed under stay on its record for the safety check.
+        robot.past_caps.extend(rec.caps.window(-math.inf, t).pieces)
+        rec.robot = rec.assigned_s = rec.started_s = rec.arrived_s = rec.print_start_s = None
+        rec.caps = CapSchedule()
+        rec.leg = 0
+        rec.turned_rad = 0.0
+        rec.quality = None
+        rec.handbacks += 1
+        rec.handed_back_by.add(robot.id)
+        self.stats["jobs_handed_back"] += 1
+        self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
+        if rec.handbacks > self.scenario.jobs.max_handbacks:
+            rec.failed_s, rec.failure = t, reason
+            self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
+            log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)
+            return
+        self._request_dispatch()
 
     def _observe(self, robots: list[RobotState], t: float) -> list[Observation]:
         radius = self.scenario.sensing_radius_m
-        near = self._neighbours(robots, radius) if radius > 0 and len(self.robots) > 1 else {}
+        priority = self._priorities(t)
+        near = (
+            self._neighbours(robots, radius, t, priority)
+            if radius > 0 and len(self.robots) > 1
+            else {}
+        )
         out = []
         tol = self.scenario.arrival_tolerance_m
         for r in robots:
@@ -445,6 +632,7 @@ class World:
                 goal = r.home
             if r.job is not None and r.job.tasks and r.job.print_start_s is None:
                 self._start_print(r, t)
+            self._watch_progress(r, goal, t, tol)
             if r.turn_rate is not None and goal is not None and self._turning(r, goal, t, tol):
                 goal = (r.x, r.y)  # turning on the spot: hold here until the turn is done
             caps = r.job.caps if r.job is not None else None
@@ -469,15 +657,78 @@ class World:
                     neighbours=near.get(r.id, ()),
                     speed_caps=window,
                     print_end_s=None if r.job is None else r.job.print_end_s,
+                    priority=priority[r.id],
+                    blockers=r.blockers,
+                    queued=len(r.queue),
                 )
             )
         return out
 
-    def _neighbours(self, robots: list[RobotState], radius: float) -> dict[str, tuple]:
+    def _priorities(self, t: float) -> dict[str, int]:
+        """Each robot's priority now: robots freed from a deadlock first, then robots with a job,
+        then the rest; smaller ids first within each class (unique, higher goes first)."""
+        n = len(self.robots)
+        return {
+            r.id: r.rank + (2 * n if t < r.boosted_until else 0) + (n if r.job is not None else 0)
+            for r in self.robots.values()
+        }
+
+    def _watch_progress(
+        self, r: RobotState, goal: tuple[float, float] | None, t: float, tol: float
+    ) -> None:
+        """Deadlock detection: a robot that has got no closer to its goal for
+        `Scenario.deadlock_after_s` while other robots stand close is blocked by them; its
+        observation names them (its controller routes round them) and its priority is raised."""
+        after = self.scenario.deadlock_after_s
+        if goal is None or after is None or r.faulted:
+            r.watched_goal, r.blockers = None, ()
+            return
+        gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
+        if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M:
+            r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, t, ()
+            return
+        if t - r.progress_s < after - 1e-9:
+            return
+        # Robots standing on this one's goal are no deadlock: it waits its turn there.
+        blockers = tuple(
+            o.id
+            for o in self.robots.values()
+            if o is not r
+            and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + BLOCKING_GAP_M
+            and math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
+        )
+        if blockers and not r.blockers:
+            self.stats["deadlocks"] += 1
+            r.boosted_until = t + after
+            self.recorder.event(
+                t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(blockers)
+            )
+            log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, list(blockers))
+        r.blockers = blockers
+
+    def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
+        """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;
+        empty when it has none or it ended more than `PLAN_STALE_S` ago."""
+        plan = r.thinned_plan
+        if not plan or plan[-1][0] < t - PLAN_STALE_S:
+            return ()
+        i = bisect.bisect_right(plan, t, key=_sample_time)
+        if i == len(plan):
+            return ((t, plan[-1][1], plan[-1][2]),)
+        if i == 0:
+            return plan
+        (t0, x0, y0), (t1, x1, y1) = plan[i - 1], plan[i]
+        f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        return ((t, x0 + f * (x1 - x0), y0 + f * (y1 - y0)), *plan[i:])
+
+    def _neighbours(
+        self, robots: list[RobotState], radius: float, t: float, priority: dict[str, int]
+    ) -> dict[str, tuple]:
         cells: dict[tuple[int, int], list[RobotState]] = defaultdict(list)
         for r in self.robots.values():
             cells[(int(r.x // radius), int(r.y // radius))].append(r)
         out = {}
+        plans: dict[str, tuple] = {}
         r2 = radius * radius
         for r in robots:
             cx, cy = int(r.x // radius), int(r.y // radius)
@@ -489,9 +740,16 @@ class World:
                         if o is not r and d2 <= r2:
                             found.append((d2, o.id, o))
             found.sort()
-            out[r.id] = tuple(
-                Neighbour(o.id, o.x, o.y, o.vx, o.vy) for _, _, o in found[:MAX_NEIGHBOURS]
-            )
+            near = []
+            for _, _, o in found[:MAX_NEIGHBOURS]:
+                if o.id not in plans:
+                    plans[o.id] = self._future_plan(o, t)
+                near.append(
+                    Neighbour(
+                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plans[o.id]
+                    )
+                )
+            out[r.id] = tuple(near)
         return out
 
     # -- turning in place ---------------------------------------------------------------------
@@ -580,7 +838,7 @@ class World:
         rec.caps = rec.caps.window(-math.inf, self.env.now)
         robot.past_caps.extend(rec.caps.pieces)
         robot.jobs_completed += 1
-        robot.job = None
+        robot.job = robot.queue.pop(0) if robot.queue else None
         self.recorder.event(self.env.now, "delivered", rec.job.id, robot.id, rec.job.station)
         self._request_dispatch()
 
@@ -617,6 +875,10 @@ class World:
         rec.quality = self.quality.predict(tasks, t, xy, v, self.floor.spec.rough_areas)
 
     def _request_dispatch(self) -> None:
+        if self._auction:
+            # Contract net: open jobs are announced in the next bus round and awarded from bids.
+            self._announce.update(rec.job.id for rec in self.jobs if rec.open)
+            return
         if not self._dispatch_scheduled:
             self._dispatch_scheduled = True
             self.env.timeout(0).callbacks.append(self._dispatch)
@@ -626,20 +888,54 @@ class World:
             return  # already run at this instant, before a bus round
         self._dispatch_scheduled = False
         open_jobs = [rec for rec in self.jobs if rec.open]
-        idle = [r for r in self.robots.values() if r.job is None]
+        idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
         if not open_jobs or not idle:
             return
-        by_id = {rec.job.id: rec for rec in open_jobs}
-        statuses = [
-            RobotStatus(r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id)
+        self._apply_assignments(open_jobs, self.dispatcher.assign)
+
+    def _statuses(self) -> list[RobotStatus]:
+        """The robots as dispatchers see them (faulted robots are left out: they take no jobs)."""
+        return [
+            RobotStatus(
+                r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
+            )
             for r in self.robots.values()
+            if not r.faulted
         ]
+
+    def _award(self, bids: list[Bid]) -> None:
+        """Let the dispatcher award announced jobs from this round's bids."""
+        open_jobs = {rec.job.id: rec for rec in self.jobs if rec.open}
+        valid = [
+            b
+            for b in bids
+            if b.job in open_jobs
+            # A robot that gave a job back does not win it again.
+            and b.robot not in open_jobs[b.job].handed_back_by
+            and b.robot in self.robots
+            and not self.robots[b.robot].faulted
+            and not self.robots[b.robot].queue
+        ]
+        self.stats["bids"] += len(bids)
+        if not valid:
+            return
+        wanted = sorted({b.job for b in valid})
+        self._apply_assignments(
+            [open_jobs[j] for j in wanted],
+            lambda jobs, statuses, context: self.dispatcher.award(valid, jobs, statuses, context),
+            queue=True,
+        )
+
+    def _apply_assignments(
+        self, open_jobs: list[JobRecord], choose: Callable[..., Any], queue: bool = False
+    ) -> None:
+        """Ask `choose(jobs, statuses, context)` for assignments and apply the valid ones; with
+        `queue`, a busy robot may take a job behind its current one."""
+        by_id = {rec.job.id: rec for rec in open_jobs}
         context = DispatchContext(self.env.now, self.floor, self.planner)
         name = self.scenario.dispatcher.name
         try:
-            assignments = list(
-                self.dispatcher.assign([rec.job for rec in open_jobs], statuses, context)
-            )
+            assignments = list(choose([rec.job for rec in open_jobs], self._statuses(), context))
         except Exception:  # a plugin may raise anything; jobs stay open for the next try
             self.stats["dispatcher_errors"] += 1
             first = self.stats["dispatcher_errors"] == 1
@@ -656,13 +952,21 @@ class World:
             valid = isinstance(a, Assignment)
             rec = by_id.get(a.job) if valid else None
             robot = self.robots.get(a.robot) if valid else None
-            if rec is None or robot is None or robot.job is not None or a.job in taken_jobs:
+            # A robot takes a job when idle, or (auctions) behind its current one if none waits.
+            busy = robot is not None and (
+                robot.faulted or (robot.job is not None and (not queue or bool(robot.queue)))
+            )
+            if rec is None or robot is None or busy or a.job in taken_jobs:
                 self.stats["assignments_rejected"] += 1
                 log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
                 continue
             taken_jobs.add(a.job)
             rec.robot, rec.assigned_s = robot.id, self.env.now
-            robot.job = rec
+            self._announce.discard(rec.job.id)
+            if robot.job is None:
+                robot.job = rec
+            else:
+                robot.queue.append(rec)
             self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
 
     # -- running --------------------------------------------------------------------------------
@@ -684,11 +988,21 @@ class World:
         try:
             self.env.run(until=duration)
         finally:
-            self.exchange.close()
-            self.host.close()
+            self._close_bus()
         wall = time.perf_counter() - wall0
         self.result = self._summarise(wall)
         return self.result
+
+    def _close_bus(self) -> None:
+        """Say BYE to the agents, let the workers go and remove the private socket's folder."""
+        self.exchange.close()
+        if self.host is not None:
+            self.host.close()
+        if self.workers is not None:
+            self.workers.close()
+        if self._tmpdir is not None:
+            self._tmpdir.cleanup()
+            self._tmpdir = None
 
     def _progress(self, progress: Callable[[float], None], duration: float):
         step = max(duration / 200.0, min(r.spec.period for r in self.robots.values()))
@@ -708,6 +1022,23 @@ class World:
             if rec.print_end_s is not None and rec.print_end_s <= self.env.now + 1e-9:
                 self._judge(rec)
         completed = [rec for rec in self.jobs if rec.delivered_s is not None]
+        failed = [rec for rec in self.jobs if rec.failed_s is not None]
+        # No job may be lost: every released job is delivered, given up, held by a robot
+        # (current or queued) or open for the dispatcher, and exactly one of these. Counted from
+        # the robots' side, so a job that fell between them shows.
+        held = [rec for r in self.robots.values() for rec in (r.job, *r.queue) if rec is not None]
+        waiting = [rec for rec in self.jobs if rec.open]
+        in_progress = held + waiting
+        states = [id(rec) for rec in (*completed, *failed, *in_progress)]
+        accounted = len(states) == len(set(states)) == len(self.jobs)
+        if not accounted:
+            log.error(
+                "job accounting broken: %d released != %d completed + %d failed + %d in progress",
+                len(self.jobs),
+                len(completed),
+                len(failed),
+                len(in_progress),
+            )
         good = [rec for rec in completed if rec.quality is None or rec.quality.passed]
         now = float(self.env.now)
         late = sum(
@@ -741,6 +1072,12 @@ class World:
             "jobs": {
                 "released": len(self.jobs),
                 "completed": len(completed),
+                # Given up after too many hand-backs (`[jobs] max_handbacks`), and the rest:
+                # released == completed + failed + in_progress, checked in `accounted`.
+                "failed": len(failed),
+                "in_progress": len(in_progress),
+                "accounted": accounted,
+                "handed_back": sum(rec.handbacks for rec in self.jobs),
                 "assigned_open": sum(
                     1 for rec in self.jobs if rec.robot and rec.delivered_s is None
                 ),
@@ -757,6 +1094,7 @@ class World:
             "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
             "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
             "violations": dict(safety.counts),
+            "faults": dict(self.faults),
             "print_caps": {
                 "caps": dict(sorted(sc.print_caps.items())),
                 "enforced": sc.enforce_print_caps,
@@ -895,18 +1233,29 @@ def _at_rest_near(robot: RobotState, goal: tuple[float, float] | None, tol: floa
     )
 
 
+def _thin(
+    plan: tuple[tuple[float, float, float], ...], spacing: float
+) -> tuple[tuple[float, float, float], ...]:
+    """`plan` with samples at least `spacing` seconds apart (the first and last kept)."""
+    if len(plan) <= 2:
+        return plan
+    out = [plan[0]]
+    for sample in plan[1:-1]:
+        if sample[0] - out[-1][0] >= spacing - 1e-9:
+            out.append(sample)
+    if plan[-1][0] - out[-1][0] < spacing / 2 and len(out) > 1:
+        out.pop()  # keep the last sample, not one a moment before it
+    out.append(plan[-1])
+    return tuple(out)
+
+
+def _sample_time(sample: tuple[float, float, float]) -> float:
+    return sample[0]
+
+
 def _wrap(angle: float) -> float:
     """`angle` folded into [-pi, pi)."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _load_floor(scenario: Scenario, floor: Floor | None) -> Floor:
-    """The scenario's floor (or `floor`); with `rough_v_max`, every rough area is also a speed
-    zone."""
-    if scenario.rough_v_max is None:
-        return floor if floor is not None else load_floor(scenario.map)
-    spec = floor.spec if floor is not None else load_spec(scenario.map)
-    return slow_on_rough(spec, scenario.rough_v_max)
 
 
 def _quality_model(scenario: Scenario) -> QualityModel | None:

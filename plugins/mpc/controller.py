@@ -24,20 +24,34 @@ from fleet.plugins import (
     Controller,
     ControllerContext,
     ControlStatus,
+    Neighbour,
     Observation,
     SolveReport,
     SolverOutcome,
 )
 from fleet.printing import CapSchedule
-from fleet.robot import brake_input
+from fleet.robot import DoubleIntegrator, brake_input
 from fleet_plugins.mpc.model import Interface, Solution, StepData, TripModel
 from fleet_plugins.mpc.refine import refine_quadratic
+from fleet_plugins.mpc.separation import (
+    Obstacle,
+    Separation,
+    at_rest,
+    build_separation,
+    predict,
+    reaches,
+    spans,
+)
 from fleet_plugins.mpc.trip import Trip, reach_boxes
 
 __all__ = ["MPCController"]
 
 #: Per-axis speed (m/s) below which the robot counts as at rest.
 REST_SPEED = 1e-9
+#: A robot at rest (to this per-axis speed, m/s) this close (m) to its goal holds without a
+#: solve: the optimum there is to stay.
+PARKED_SPEED = 1e-6
+PARKED_DISTANCE = 1e-3
 #: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
 PLAN_MATCH = 1e-6
 #: How far ahead (samples) the progress search along the reference looks.
@@ -66,10 +80,26 @@ class MPCController(Controller):
     progress (±`corridor` chords) plus the region the previous plan used there, and only those
     whose bounding box meets the reachable box of the step: a handful of binaries per solve.
 
+    Other robots (`Observation.neighbours`, with ``avoid_robots``): each one whose predicted
+    square can come within reach of the plan adds binaries for the four sides of the square of
+    half-width ``r_i + r_j + separation_margin_m`` round its predicted centre (its plan
+    interpolated at each step's time), one of which must hold over each group of steps
+    (`separation`). The margin is soft (a heavy cost), contact is not. With
+    ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
+    on a tie, the smaller robot id) wherever they can come within reach, and of the robots it
+    outranks only when they are parked for the whole horizon or close (closer than two robots
+    at full speed need to stop, plus a step each); a close one may carry on or stop to let it
+    pass, so it keeps clear of the box round both. The higher one thus keeps its course, and
+    the lower one has a plan to avoid that does not move away as it yields (when both yield,
+    both swerve alike and meet again: measured head-on). At most ``max_neighbours`` robots,
+    the nearest, are constrained.
+
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
     error) the controller falls back: the previous plan shifted by one step if the robot is on
-    it (it ends at rest, so it stays safe to its end), else braking along the line of travel.
-    It then plans a new trip. Every command carries a `SolveReport`.
+    it and it keeps clear of every neighbour's predicted position (it ends at rest, so it stays
+    safe to its end), else braking along the line of travel (with neighbours about, the
+    command's plan is then the braking path, so that they avoid it). It then plans a new trip.
+    Every command carries a `SolveReport`.
 
     Parameters
     ----------
@@ -89,6 +119,16 @@ class MPCController(Controller):
     interface:
         ``"direct"`` (default): per-step bounds written into the persistent HiGHS object by
         index; ``"pyomo"``: mutable Params through Pyomo's persistent update (slower, same model).
+    avoid_robots:
+        Keep clear of the other robots in the observation (their plans); False ignores them.
+    separation_margin_m:
+        Clearance (m) kept between two robots' discs on top of the sum of their radii (soft:
+        a plan enters it only where it cannot keep out).
+    max_neighbours:
+        At most this many robots (the nearest that need it) are kept clear of per solve.
+    respect_priority:
+        Yield to higher-priority robots and keep course for lower ones unless they are parked
+        or close (see above); False keeps clear of every robot in reach.
     """
 
     name = "mpc"
@@ -104,6 +144,10 @@ class MPCController(Controller):
         warm_start: bool = True,
         interface: str = "direct",
         cost: str = "l1",
+        avoid_robots: bool = True,
+        separation_margin_m: float = 0.1,
+        max_neighbours: int = 3,
+        respect_priority: bool = True,
     ) -> None:
         super().__init__()
         if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 2:
@@ -123,8 +167,26 @@ class MPCController(Controller):
             raise ValueError(
                 f"MPCController option time_limit_s = {time_limit_s!r}: must be a number > 0"
             )
-        if not isinstance(warm_start, bool):
-            raise ValueError(f"MPCController option warm_start = {warm_start!r}: must be a bool")
+        for label, flag in (
+            ("warm_start", warm_start),
+            ("avoid_robots", avoid_robots),
+            ("respect_priority", respect_priority),
+        ):
+            if not isinstance(flag, bool):
+                raise ValueError(f"MPCController option {label} = {flag!r}: must be a bool")
+        if not _non_negative(separation_margin_m):
+            raise ValueError(
+                f"MPCController option separation_margin_m = {separation_margin_m!r}: "
+                "must be a number >= 0"
+            )
+        if (
+            isinstance(max_neighbours, bool)
+            or not isinstance(max_neighbours, int)
+            or max_neighbours < 0
+        ):
+            raise ValueError(
+                f"MPCController option max_neighbours = {max_neighbours!r}: must be an integer >= 0"
+            )
         try:
             self.interface = Interface(interface)
         except ValueError:
@@ -141,6 +203,10 @@ class MPCController(Controller):
         self.corridor = corridor
         self.time_limit_s = float(time_limit_s)
         self.warm_start = warm_start
+        self.avoid_robots = avoid_robots
+        self.separation_margin_m = float(separation_margin_m)
+        self.max_neighbours = max_neighbours
+        self.respect_priority = respect_priority
         self._clear()
 
     def __repr__(self) -> str:
@@ -148,7 +214,9 @@ class MPCController(Controller):
             f"MPCController(horizon={self.horizon}, weights={self.weights}, "
             f"corridor={self.corridor}, time_limit_s={self.time_limit_s}, "
             f"warm_start={self.warm_start}, interface={self.interface.value!r}, "
-            f"cost={self.cost!r})"
+            f"cost={self.cost!r}, avoid_robots={self.avoid_robots}, "
+            f"separation_margin_m={self.separation_margin_m}, "
+            f"max_neighbours={self.max_neighbours}, respect_priority={self.respect_priority})"
         )
 
     def reset(self, context: ControllerContext) -> None:
@@ -186,6 +254,10 @@ class MPCController(Controller):
         self.trips = 0
         #: Binaries switched on (corridor size) in each solve so far, for benchmarks.
         self.binaries: list[int] = []
+        #: Separation binaries added in each solve so far (0: no robot within reach).
+        self.separation_binaries: list[int] = []
+        #: Robots kept clear of in each solve so far.
+        self.separation_robots: list[tuple[str, ...]] = []
         #: Quadratic refinements that were not optimal (their MILP input was applied instead).
         self.qp_failures = 0
         self._qp_highs: highspy.Highs | None = None
@@ -199,20 +271,30 @@ class MPCController(Controller):
             self._goal = self._trip = self._model = self._last = None
             return self._brake(obs, ControlStatus.IDLE)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
+        if self._parked(obs, goal):
+            # At rest on the goal the optimum is to stay: skip the solve. Others see a robot
+            # parked for the whole horizon (and keep clear of it as such).
+            # (A speed left from the solver's tolerances is cancelled within the step.)
+            dt = spec.period
+            end = obs.t + self.horizon * dt
+            plan = ((obs.t, obs.x, obs.y), (end, obs.x + dt * obs.vx, obs.y + dt * obs.vy))
+            return Command(-obs.vx / dt + 0.0, -obs.vy / dt + 0.0, ControlStatus.OK, plan)
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
             return self._brake(obs, ControlStatus.FALLBACK)
         assert self._trip is not None and self._model is not None
         data, warm = self._step_data(obs)
-        solution = self._model.solve(data, warm)
+        separation = self._separation(obs, data)
+        solution = self._model.solve(data, warm, separation)
         if solution.outcome is SolverOutcome.INFEASIBLE:
             # The corridor assumed the plan keeps pace with the reference; open it back to the
             # robot's own progress and try once more before falling back.
             first = solution.solver_s
             data, warm = self._step_data(obs, wide=True)
-            solution = self._model.solve(data, warm)
+            separation = self._separation(obs, data)
+            solution = self._model.solve(data, warm, separation)
             solution.solver_s += first
         if self.cost == "quadratic" and solution.outcome.usable:
-            solution = self._refine(solution, data)
+            solution = self._refine(solution, data, separation)
         step_s = time.perf_counter() - started
         report = SolveReport(solution.outcome, solution.solver_s, step_s)
         if solution.outcome.usable:
@@ -227,10 +309,27 @@ class MPCController(Controller):
             return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
         return self._fallback(obs, report)
 
-    def _refine(self, milp: Solution, data: StepData) -> Solution:
-        """The paper's quadratic cost for the MILP's regions; the MILP's plan if that fails."""
+    def _parked(self, obs: Observation, goal: tuple[float, float]) -> bool:
+        """At rest (to `PARKED_SPEED`) within `PARKED_DISTANCE` of the goal, with no robot closer
+        than contact (then a solve may move it away)."""
+        if max(abs(obs.vx), abs(obs.vy)) > PARKED_SPEED:
+            return False
+        if math.hypot(goal[0] - obs.x, goal[1] - obs.y) > PARKED_DISTANCE:
+            return False
+        r = self.context.spec.radius
+        return all(math.hypot(n.x - obs.x, n.y - obs.y) > r + n.radius for n in obs.neighbours)
+
+    def _refine(self, milp: Solution, data: StepData, separation: Separation | None) -> Solution:
+        """The paper's quadratic cost for the MILP's regions; the MILP's plan if that fails.
+
+        With other robots about, the sides of their squares the MILP chose are fixed too: each
+        is a bound on one coordinate of one point, so the QP keeps clear of them as well.
+        """
         assert milp.regions is not None
         spec = self.context.spec
+        if separation is not None and milp.separation is not None:
+            p_lo, p_hi = separation.bounds(milp.separation, data.p_lo, data.p_hi)
+            data = StepData(p_lo, p_hi, data.v_lo, data.v_hi, data.z_ub, data.p_ref, data.v_ref)
         if self._qp_highs is None:
             self._qp_highs = highspy.Highs()  # its own object: each refinement replaces its model
         assert self._trip is not None
@@ -259,6 +358,7 @@ class MPCController(Controller):
             v=qp.v,
             u=qp.u,
             regions=milp.regions,
+            separation=milp.separation,
         )
 
     def _new_trip(self, obs: Observation, goal: tuple[float, float]) -> bool:
@@ -373,6 +473,90 @@ class MPCController(Controller):
             warm = model.shifted_columns(self._last, data)
         return data, warm
 
+    # -- other robots ---------------------------------------------------------------------------
+    def _separation(self, obs: Observation, data: StepData) -> Separation | None:
+        """The rows keeping this solve's plan clear of the robots that need it (None: none).
+
+        A robot needs it when its square can come within reach of the plan (the reachable
+        boxes, narrowed to the regions each step may use) and, with `respect_priority`, it
+        outranks this one or is parked or close (see the class). The nearest `max_neighbours`
+        of those are kept.
+        """
+        if not self.avoid_robots or not obs.neighbours or self.max_neighbours == 0:
+            self.separation_binaries.append(0)
+            self.separation_robots.append(())
+            return None
+        spec = self.context.spec
+        N, dt = self.horizon, spec.period
+        p_lo, p_hi = self._region_bounds(data)
+        # Within this, two robots at full speed could not stop before they met.
+        near = spec.v_max**2 / spec.a_max + 2.0 * spec.v_max * dt
+        margin = self.separation_margin_m
+        picked: list[tuple[float, str, Obstacle]] = []
+        for n in obs.neighbours:
+            centres = predict(n, obs.t, dt, N)
+            half = spec.radius + float(n.radius) + margin
+            distance = math.hypot(n.x - obs.x, n.y - obs.y)
+            ob = Obstacle.square(n.robot, centres, half, margin)
+            if self.respect_priority and _outranks(obs, n) and not at_rest(centres):
+                if distance >= half + near:
+                    continue  # it yields to this robot; this one keeps its course
+                # Close by: it may carry on with its plan or stop to let this one pass (it
+                # changes its plan as this one's changes): keep clear of both.
+                stop = np.array(_braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))
+                stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
+                ob = Obstacle.between(n.robot, centres, stop, half, margin)
+            if not reaches(ob, p_lo, p_hi):
+                continue
+            picked.append((distance, n.robot, ob))
+        picked.sort(key=lambda item: (item[0], item[1]))
+        chosen = tuple(ob for _, _, ob in picked[: self.max_neighbours])
+        if not chosen:
+            self.separation_binaries.append(0)
+            self.separation_robots.append(())
+            return None
+        separation = build_separation(chosen, p_lo, p_hi, spans(N, dt))
+        self.separation_binaries.append(separation.binaries)
+        self.separation_robots.append(tuple(ob.robot for ob in chosen))
+        return separation
+
+    def _region_bounds(self, data: StepData) -> tuple[np.ndarray, np.ndarray]:
+        """Where each p[k] can be: the reachable box within the boxes of the regions its
+        steps may use (p[k] lies in the region of step k-1 and of step k)."""
+        assert self._trip is not None
+        boxes = self._trip.region_boxes
+        N = self.horizon
+        allowed = data.z_ub > 0.5  # (N-1, |S|), steps 1..N-1
+        inf = np.inf
+        lo_s = np.where(allowed[:, :, None], boxes[None, :, :2], inf).min(axis=1)  # (N-1, 2)
+        hi_s = np.where(allowed[:, :, None], boxes[None, :, 2:], -inf).max(axis=1)
+        none = ~allowed.any(axis=1)  # no region open (the solve is infeasible): no narrowing
+        lo_s[none], hi_s[none] = -inf, inf
+        lo = np.full((N + 1, 2), -inf)
+        hi = np.full((N + 1, 2), inf)
+        # Point k is an end of steps k-1 and k (for k - 1 >= 1 and k <= N - 1).
+        lo[1:N] = np.maximum(lo[1:N], lo_s)
+        hi[1:N] = np.minimum(hi[1:N], hi_s)
+        lo[2 : N + 1] = np.maximum(lo[2 : N + 1], lo_s)
+        hi[2 : N + 1] = np.minimum(hi[2 : N + 1], hi_s)
+        p_lo = np.maximum(data.p_lo, lo)
+        p_hi = np.minimum(data.p_hi, hi)
+        p_hi = np.maximum(p_hi, p_lo)  # an empty box: left for HiGHS to find infeasible
+        return p_lo, p_hi
+
+    def _clear_of_neighbours(self, obs: Observation, p: np.ndarray) -> bool:
+        """Whether plan `p` (steps 0..N from now) keeps every neighbour's predicted disc out
+        of its own at steps 1..N (a fallback plan is checked before it is followed)."""
+        if not self.avoid_robots:
+            return True
+        spec = self.context.spec
+        for n in obs.neighbours:
+            centres = predict(n, obs.t, spec.period, len(p) - 1)
+            gap = np.hypot(*(p[1:] - centres[1:]).T)
+            if np.any(gap < spec.radius + float(n.radius) - 1e-9):
+                return False
+        return True
+
     def _on_plan(self, obs: Observation) -> bool:
         """Whether the robot is where the last usable plan said it would be now."""
         last = self._last
@@ -387,9 +571,14 @@ class MPCController(Controller):
 
     # -- fallbacks ------------------------------------------------------------------------------
     def _fallback(self, obs: Observation, report: SolveReport) -> Command:
-        """The shifted previous plan if the robot is on it, else braking; then a new trip."""
+        """The shifted previous plan if the robot is on it and it keeps clear of the other
+        robots, else braking; then a new trip."""
         on_plan = self._on_plan(obs)
         self._model = None  # plan a new trip next tick
+        if on_plan and obs.neighbours:
+            assert self._last is not None and self._last.p is not None
+            shifted_p = np.vstack([self._last.p[1:], self._last.p[-1:]])
+            on_plan = self._clear_of_neighbours(obs, shifted_p)
         if on_plan:
             last = self._last
             assert last is not None and last.p is not None and last.v is not None
@@ -416,11 +605,42 @@ class MPCController(Controller):
         return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report)
 
     def _brake(self, obs: Observation, status: ControlStatus) -> Command:
+        """Brake along the line of travel; with other robots about, the braking path is the
+        plan (else they would keep avoiding the last plan, which runs on past the stop)."""
         if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
             return Command(0.0, 0.0, status)
         spec = self.context.spec
         ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
-        return Command(ax, ay, status)
+        plan: tuple[tuple[float, float, float], ...] = ()
+        if obs.neighbours:
+            plan = _braking_path(
+                obs.t, obs.x, obs.y, obs.vx, obs.vy, spec.period, spec.a_max, self.horizon
+            )
+        return Command(ax, ay, status, plan)
+
+
+def _outranks(obs: Observation, other: Neighbour) -> bool:
+    """Whether the robot of `obs` goes before `other`: higher priority, or on a tie (an engine
+    that sets none) the smaller robot id."""
+    if obs.priority != other.priority:
+        return obs.priority > other.priority
+    return obs.robot < other.robot
+
+
+def _braking_path(
+    t: float, x: float, y: float, vx: float, vy: float, dt: float, a_max: float, steps: int
+) -> tuple[tuple[float, float, float], ...]:
+    """Samples ``(t, x, y)`` of braking along the line of travel until at rest (at most
+    `steps` periods; a neighbour is assumed to brake as hard as this robot can)."""
+    robot = DoubleIntegrator(dt, a_max)
+    out = [(t, x, y)]
+    for k in range(1, steps + 1):
+        ax, ay = brake_input(vx, vy, dt, a_max)
+        x, y, vx, vy = robot.step(x, y, vx, vy, ax, ay)
+        out.append((t + k * dt, x, y))
+        if abs(vx) <= REST_SPEED and abs(vy) <= REST_SPEED:
+            break
+    return tuple(out)
 
 
 def _non_negative(x: object) -> bool:

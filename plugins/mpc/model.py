@@ -17,10 +17,12 @@ formulation, for horizon steps k = 0..N with step dt:
 
 Per step only bounds change: p, v (measured state, caps, reachable boxes), z (corridor: a 0
 upper bound switches a region off for a step) and the right-hand sides of the tracking rows
-(the reference). Two ways to push them into HiGHS (`Interface`): through Pyomo's persistent
-interface (mutable Params, ``update_parameters``) or written straight into the HiGHS object
-that interface holds, by the column/row indices it assigned (no Pyomo expression
-re-evaluation: 1.2x HiGHS time instead of ~2x; see docs/mpc.md).
+(the reference). Rows keeping clear of other robots (`separation`) change in number every
+step; they are appended to the HiGHS model for one solve and removed after it. Two ways to push
+the rest into HiGHS (`Interface`): through Pyomo's persistent interface (mutable Params,
+``update_parameters``) or written straight into the HiGHS object that interface holds, by the
+column/row indices it assigned (no Pyomo expression re-evaluation: 1.2x HiGHS time instead of
+~2x; see docs/mpc.md).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import pyomo.environ as pyo
 from pyomo.contrib.solver.solvers.highs import Highs as PersistentHighs
 
 from fleet.plugins import SolverOutcome
+from fleet_plugins.mpc.separation import SLACK_COST, Separation
 from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
 
 __all__ = ["Interface", "TripModel", "StepData", "Solution", "HIGHS_OPTIONS"]
@@ -86,6 +89,8 @@ class Solution:
     u: np.ndarray | None = None  # (N, 2)
     regions: np.ndarray | None = None  # (N-1,) position in S used at steps 1..N-1
     columns: np.ndarray | None = None  # the raw column values (for warm starts)
+    #: The separation columns' values (binaries, then slacks) when the solve had any.
+    separation: np.ndarray | None = None
 
 
 class TripModel:
@@ -178,26 +183,102 @@ class TripModel:
         self._n_cols = self.highs.getNumCol()
 
     # -- per step -------------------------------------------------------------------------------
-    def solve(self, data: StepData, warm: np.ndarray | None = None) -> Solution:
-        """Push `data` into the model, solve, and read the plan."""
-        if self.interface is Interface.DIRECT:
-            self._write_direct(data)
+    def solve(
+        self,
+        data: StepData,
+        warm: np.ndarray | None = None,
+        separation: Separation | None = None,
+    ) -> Solution:
+        """Push `data` into the model, solve, and read the plan.
+
+        `separation` (rows keeping clear of other robots, `separation.build_separation`) is
+        appended to the HiGHS model for this solve only, in both interfaces (it is not part of
+        the Pyomo model: its size changes every step), and removed again afterwards. A
+        separation no plan can meet is reported `INFEASIBLE` without asking HiGHS.
+        """
+        if separation is not None and separation.infeasible:
+            return Solution(SolverOutcome.INFEASIBLE, 0.0)
+        extra = separation is not None and separation.groups > 0
+        if extra:
+            assert separation is not None
+            self._append(separation)
             if warm is not None:
-                self._warm_start(warm)
-            t0 = time.perf_counter()
-            self.highs.run()
-            solver_s = time.perf_counter() - t0
-        else:
-            self._write_params(data)
-            before = self.highs.getRunTime()
-            opts = self.solver.config
-            opts.load_solutions = False
-            opts.raise_exception_on_nonoptimal_result = False
-            opts.time_limit = self.time_limit_s
-            opts.solver_options = {k: v for k, v in self._options.items() if k != "time_limit"}
-            self.solver.solve(self.model)
-            solver_s = self.highs.getRunTime() - before
-        return self._read(solver_s)
+                p = warm[self._p_cols].reshape(self.N + 1, 2)
+                warm = np.concatenate([warm, separation.start(p)])
+        try:
+            if self.interface is Interface.DIRECT:
+                self._write_direct(data)
+                if warm is not None:
+                    self._warm_start(warm)
+                t0 = time.perf_counter()
+                self.highs.run()
+                solver_s = time.perf_counter() - t0
+            else:
+                self._write_params(data)
+                before = self.highs.getRunTime()
+                opts = self.solver.config
+                opts.load_solutions = False
+                opts.raise_exception_on_nonoptimal_result = False
+                opts.time_limit = self.time_limit_s
+                opts.solver_options = {k: v for k, v in self._options.items() if k != "time_limit"}
+                self.solver.solve(self.model)
+                solver_s = self.highs.getRunTime() - before
+            return self._read(solver_s)
+        finally:
+            if extra:
+                self._remove()
+
+    def _append(self, sep: Separation) -> None:
+        """Add `sep`'s binaries, slacks and rows after the model's own columns and rows."""
+        h = self.highs
+        n_bin, n_grp = sep.binaries, sep.groups
+        base = h.getNumCol()
+        n_new = n_bin + n_grp
+        costs = np.concatenate([np.zeros(n_bin), np.full(n_grp, SLACK_COST)])
+        empty_i = np.zeros(0, dtype=np.int32)
+        h.addCols(
+            n_new,
+            costs,
+            np.zeros(n_new),
+            np.concatenate([np.ones(n_bin), sep.group_slack]),
+            0,
+            np.zeros(n_new, dtype=np.int32),
+            empty_i,
+            np.zeros(0),
+        )
+        binaries = np.arange(base, base + n_bin, dtype=np.int32)
+        h.changeColsIntegrality(
+            n_bin, binaries, np.full(n_bin, int(highspy.HighsVarType.kInteger), dtype=np.uint8)
+        )
+        # Side rows: s p[e, axis] - M b + slack >= s c + d - M (three entries each).
+        n_side = len(sep.row_lo)
+        p_col = self._p_cols[sep.row_point]
+        b_col = binaries[sep.row_binary]
+        slack_col = base + n_bin + sep.binary_group[sep.row_binary]
+        side_idx = np.column_stack([p_col, b_col, slack_col]).astype(np.int32).ravel()
+        side_val = np.column_stack([sep.row_sign, -sep.row_big_m, np.ones(n_side)]).ravel()
+        # Group rows: one of the group's sides holds.
+        order = np.argsort(sep.binary_group, kind="stable")
+        sizes = np.bincount(sep.binary_group, minlength=n_grp)
+        group_idx = binaries[order]
+        starts = np.concatenate(
+            [np.arange(n_side) * 3, 3 * n_side + np.concatenate([[0], np.cumsum(sizes)[:-1]])]
+        ).astype(np.int32)
+        index = np.concatenate([side_idx, group_idx]).astype(np.int32)
+        value = np.concatenate([side_val, np.ones(n_bin)])
+        lower = np.concatenate([sep.row_lo, np.ones(n_grp)])
+        n_rows = n_side + n_grp
+        h.addRows(
+            n_rows, lower, np.full(n_rows, highspy.kHighsInf), len(index), starts, index, value
+        )
+        self._added = (base, n_new, h.getNumRow() - n_rows, n_rows)
+
+    def _remove(self) -> None:
+        """Take the last solve's separation columns and rows out again."""
+        base, n_cols, first_row, n_rows = self._added
+        h = self.highs
+        h.deleteRows(n_rows, np.arange(first_row, first_row + n_rows, dtype=np.int32))
+        h.deleteCols(n_cols, np.arange(base, base + n_cols, dtype=np.int32))
 
     def _write_direct(self, d: StepData) -> None:
         h = self.highs
@@ -258,7 +339,8 @@ class TripModel:
             v=col[self._v_cols].reshape(N + 1, 2),
             u=col[self._u_cols].reshape(N, 2),
             regions=np.argmax(z, axis=1),
-            columns=col,
+            columns=col[: self._n_cols],
+            separation=col[self._n_cols :].copy() if len(col) > self._n_cols else None,
         )
 
     def shifted_columns(self, sol: Solution, data: StepData) -> np.ndarray:
