@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -69,7 +70,10 @@ def _parser() -> argparse.ArgumentParser:
         "--authorized", type=Path, help="directory of the agents' public key files (with --key)"
     )
     serve.add_argument(
-        "--wait", type=float, default=300.0, help="seconds to wait for agents (default 300)"
+        "--wait",
+        type=_positive_float,
+        default=300.0,
+        help="seconds to wait for agents (default 300)",
     )
     serve.set_defaults(handler=_cmd_serve)
 
@@ -84,6 +88,12 @@ def _parser() -> argparse.ArgumentParser:
     agent.add_argument("--name", help="agent name (default agent-<pid>-1)")
     agent.add_argument("--key", type=Path, help="this agent's secret key file (`fleet keys`)")
     agent.add_argument("--server-key", type=Path, help="the engine's public key file (with --key)")
+    agent.add_argument(
+        "--wait",
+        type=_positive_float,
+        default=300.0,
+        help="give up after this many seconds without a word from the engine (default 300)",
+    )
     agent.set_defaults(handler=_cmd_agent)
 
     keys = sub.add_parser("keys", help="make a CURVE key pair for `fleet serve` / `fleet agent`")
@@ -241,12 +251,27 @@ def _cmd_agent(args: argparse.Namespace, console: Console) -> int:
             raise FleetError("fleet agent: CURVE needs both --key and --server-key")
         curve = ClientCurve(args.key, args.server_key)
     console.print(f"hosting {len(robots)} robots for {args.connect}")
-    stats = serve_agent(scenario, args.connect, robots, name=args.name, curve=curve)
-    console.print(
-        f"run finished: answered {stats['observations']} observations"
-        f" ({stats['controller_errors']} controller errors)"
+    report = serve_agent(
+        scenario, args.connect, robots, name=args.name, curve=curve, idle_timeout_s=args.wait
     )
-    return 0
+    errors = Console(stderr=True)
+    if report.accepted is None:
+        errors.print(
+            f"[bold red]error:[/] no answer from an engine at {escape(args.connect)} within "
+            f"{args.wait:g} s (not running, or it refused this agent's key)"
+        )
+        return 1
+    if report.rejected:
+        reasons = "; ".join(f"{r}: {why}" for r, why in sorted(report.rejected.items()))
+        errors.print(f"[bold red]error:[/] the engine refused robots: {escape(reasons)}")
+        if not report.accepted:
+            return 1
+    stats = report.stats
+    console.print(
+        f"{'run finished' if report.finished else 'engine went silent'}: answered "
+        f"{stats['observations']} observations ({stats['controller_errors']} controller errors)"
+    )
+    return 0 if report.finished and not report.rejected else 1
 
 
 def _cmd_keys(args: argparse.Namespace, console: Console) -> int:
@@ -394,6 +419,16 @@ def _cmd_replay(args: argparse.Namespace, console: Console) -> int:
         soft_wrap=True,
     )
     return 0
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a number > 0")
+    return value
 
 
 def _non_negative_int(text: str) -> int:

@@ -111,7 +111,7 @@ def test_robot_ids_shares_and_selection_follow_the_scenario():
     assert split_robots(list(robot_specs(sc)), 2) == [["r01", "r02", "r03"], ["r04", "r05"]]
     assert parse_robot_selection(sc, None, "2/2") == ["r04", "r05"]
     assert parse_robot_selection(sc, "r02,r05", None) == ["r02", "r05"]
-    with pytest.raises(ScenarioError, match=r"--robots.*r09"):
+    with pytest.raises(ScenarioError, match=r"--only.*r09"):
         parse_robot_selection(sc, "r02,r09", None)
     with pytest.raises(ScenarioError, match=r"--share.*3/2"):
         parse_robot_selection(sc, None, "3/2")
@@ -248,7 +248,6 @@ def test_serve_and_two_agents_over_tcp_give_the_same_run_as_one_process(tmp_path
     assert served["digest"] == local["digest"]
 
 
-
 def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
     keys = tmp_path / "keys"
     authorized = tmp_path / "authorized"
@@ -293,6 +292,8 @@ def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
             fleet_cmd(
                 "agent",
                 *common,
+                "--wait",
+                "8",
                 "--connect",
                 address,
                 "--key",
@@ -308,10 +309,12 @@ def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
     # A stranger's key is refused: the engine never hears it, logs the refusal, gives up.
     engine, stranger = serve("4"), agent("stranger")
     _, err = engine.communicate(timeout=120)
-    stranger.kill()
-    stranger.communicate()
+    _, stranger_err = stranger.communicate(timeout=60)
     assert engine.returncode == 2
     assert "refused" in err.lower() and "no agent hosts robots" in err
+    # ... and the stranger gives up with an error instead of waiting for ever.
+    assert stranger.returncode == 1
+    assert "no answer from an engine" in stranger_err
     # The authorised agent is let in and the run completes.
     engine, friend = serve("60"), agent("agent")
     _, err = engine.communicate(timeout=180)
@@ -319,3 +322,114 @@ def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
     assert engine.returncode == 0, err
     assert friend.returncode == 0, agent_err
     assert "run finished" in out
+
+
+@pytest.mark.parametrize(
+    ("scenario", "override"),
+    [
+        ("fleet.toml", {"duration": 600.0}),
+        ("fleet.toml", {"duration": 240.0, "robots": 6, "controller": "mpc"}),
+        ("default.toml", {"duration": 1200.0}),
+    ],
+    ids=["fleet-follower", "fleet-mpc", "default"],
+)
+def test_shipped_fleet_scenarios_keep_robots_apart(scenario, override):
+    sc = load_scenario(REPO_ROOT / "scenarios" / scenario).override(**override)
+    result = World(sc).run()
+    s = result.summary
+    assert s["violations"] == {"obstacle": 0, "speed_zone": 0, "print_speed": 0, "collision": 0}, (
+        result.safety.examples
+    )
+    check_accounting(s)
+    # Not vacuous: robots took jobs and drove (the default's prints outlast 20 minutes).
+    assert s["jobs"]["released"] >= 1 and s["distance_m"] > 50.0
+
+
+def test_an_agent_with_another_scenario_is_refused_and_says_so(tmp_path):
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    engine = subprocess.Popen(
+        fleet_cmd(
+            "serve",
+            str(FLEET),
+            "--robots",
+            "2",
+            "--duration",
+            "5",
+            "--bind",
+            address,
+            "--out",
+            str(tmp_path / "run"),
+            "--quiet",
+            "--no-figures",
+            "--wait",
+            "5",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    # Three robots against the engine's two: another scenario, refused by its fingerprint.
+    agent = subprocess.run(
+        fleet_cmd(
+            "agent",
+            str(FLEET),
+            "--robots",
+            "3",
+            "--only",
+            "r01",
+            "--connect",
+            address,
+            "--wait",
+            "20",
+        ),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    engine.communicate(timeout=120)
+    assert agent.returncode == 1
+    assert "refused robots" in agent.stderr and "scenario differs" in agent.stderr
+
+
+def test_bad_controller_options_fail_at_once_with_workers():
+    from fleet.errors import PluginError
+
+    sc = replace(
+        fleet_scenario(robots=2),
+        controller=replace(fleet_scenario().controller, options={"gain": -1.0}),
+    )
+    with pytest.raises(PluginError, match=r"fleet.toml: \[controller\].*gain"):
+        World(sc, workers=1)
+
+
+def test_a_world_given_its_floor_keeps_its_agents_in_process():
+    sc = fleet_scenario(robots=2)
+    floor = World(sc).floor
+    with pytest.raises(ValueError, match="workers=0"):
+        World(sc, floor, workers=1)
+
+
+def test_a_blocked_robot_hands_its_job_back_and_never_gets_it_again(monkeypatch):
+    import fleet.engine.agents as agents_module
+    from fleet.plugins import Command, ControlStatus
+    from fleet_plugins.follower import PathFollower
+
+    class Stuck(PathFollower):
+        def compute(self, obs):
+            if obs.job is not None and self.context.robot == "r01":
+                return Command(0.0, 0.0, ControlStatus.BLOCKED)
+            return super().compute(obs)
+
+    monkeypatch.setattr(agents_module, "load_controller", lambda name, options: Stuck())
+    for dispatcher in ("auction", "greedy"):
+        sc = replace(
+            fleet_scenario(robots=2, duration=200.0, dispatcher=dispatcher),
+            jobs=scripted("cnc_1_in"),  # r01 starts at depot_a, nearer: the natural pick
+        )
+        result = World(sc).run()
+        s = result.summary
+        check_accounting(s)
+        (rec,) = result.jobs
+        assert rec.handbacks == 1 and rec.handed_back_by == {"r01"}, dispatcher
+        assert rec.robot == "r02" and s["jobs"]["completed"] == 1, dispatcher

@@ -38,6 +38,7 @@ __all__ = [
     "split_robots",
     "parse_robot_selection",
     "serve_agent",
+    "AgentReport",
     "WorkerPool",
 ]
 
@@ -148,7 +149,7 @@ def split_robots(robots: Sequence[str], parts: int) -> list[list[str]]:
 
 
 def parse_robot_selection(scenario: Scenario, robots: str | None, share: str | None) -> list[str]:
-    """The robots an agent hosts: ``--robots r01,r03`` or ``--share K/N`` (the K-th of N even
+    """The robots an agent hosts: ``--only r01,r03`` or ``--share K/N`` (the K-th of N even
     contiguous shares, from 1), or every robot of the run when both are None.
 
     Raises
@@ -167,7 +168,7 @@ def parse_robot_selection(scenario: Scenario, robots: str | None, share: str | N
         if not chosen or unknown:
             raise ScenarioError(
                 "command line",
-                "--robots",
+                "--only",
                 robots,
                 f"unknown robot ids {unknown} (the run has {_span(every)})"
                 if unknown
@@ -190,11 +191,9 @@ def serve_agent(
     name: str | None = None,
     curve: Any = None,
     idle_timeout_s: float | None = None,
-) -> dict[str, int]:
-    """Host `robots`' controllers and answer the exchange at `address` until it says BYE.
-
-    Returns the host's counters (`fleet.bus.AGENT_STATS`).
-    """
+) -> AgentReport:
+    """Host `robots`' controllers and answer the exchange at `address` until it says BYE, or
+    until nothing has come from it for `idle_timeout_s` (None: wait for ever)."""
     floor = load_run_floor(scenario)
     controllers = build_controllers(scenario, floor, robots)
     kwargs: dict[str, Any] = {"name": name, "scenario": scenario_fingerprint(scenario)}
@@ -202,7 +201,24 @@ def serve_agent(
         kwargs["curve"] = curve
     with AgentHost(address, controllers, **kwargs) as host:
         host.serve(idle_timeout_s)
-        return dict(host.stats)
+        return AgentReport(
+            dict(host.stats),
+            None if host.accepted is None else sorted(host.accepted),
+            dict(host.rejected),
+            host.finished,
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentReport:
+    """How an agent's service went: its counters (`fleet.bus.AGENT_STATS`), the robots the
+    exchange accepted (None: it never answered the HELLO) and refused (with reasons), and
+    whether the exchange ended the run with BYE."""
+
+    stats: dict[str, int]
+    accepted: list[str] | None
+    rejected: dict[str, str]
+    finished: bool
 
 
 def _worker_main(scenario: Scenario, address: str, robots: list[str], name: str) -> None:
@@ -245,6 +261,10 @@ class WorkerPool:
     def alive(self) -> list[str]:
         """Names of the workers still running."""
         return [p.name for p in self.processes if p.is_alive()]
+
+    def dead(self) -> list[tuple[str, int | None]]:
+        """Workers that have exited, with their exit codes."""
+        return [(p.name, p.exitcode) for p in self.processes if p.exitcode is not None]
 
     def close(self, timeout_s: float = 10.0) -> None:
         """Wait for the workers to leave (after the exchange's BYE); terminate stragglers."""

@@ -36,7 +36,14 @@ from fleet.engine.agents import (
 )
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
-from fleet.errors import FleetError, GcodeError, NoPathError, PluginError, ScenarioError
+from fleet.errors import (
+    FleetError,
+    GcodeError,
+    MessageError,
+    NoPathError,
+    PluginError,
+    ScenarioError,
+)
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import (
@@ -185,6 +192,9 @@ class World:
     ) -> None:
         if not isinstance(workers, int) or isinstance(workers, bool) or workers < 0:
             raise ValueError(f"workers = {workers!r}: must be an integer >= 0")
+        if floor is not None and (workers or remote):
+            # Agents elsewhere load the scenario's map file: they would not see this floor.
+            raise ValueError("a World given its floor runs its agents in this process (workers=0)")
         self.scenario = scenario
         self.floor = load_run_floor(scenario, floor)
         self.rng = np.random.default_rng(scenario.seed)
@@ -258,6 +268,14 @@ class World:
         )
         try:
             if workers:
+                # A controller whose options do not suit a robot fails here, with the scenario
+                # named, instead of in a worker the engine would wait for in vain.
+                firsts, seen = [], set()
+                for rid, r in self.robots.items():
+                    if r.spec not in seen:
+                        seen.add(r.spec)
+                        firsts.append(rid)
+                build_controllers(scenario, self.floor, firsts, self.planner_for)
                 self.workers = WorkerPool(scenario, self.exchange.address, workers)
             elif not remote:
                 controllers = build_controllers(
@@ -267,7 +285,7 @@ class World:
                     self.exchange.address, controllers, name="local", scenario=fingerprint
                 )
                 self.exchange.add_local(self.host)
-            self.exchange.wait_for_agents(list(self.robots), agent_wait_s)
+            self._wait_for_agents(agent_wait_s)
         except BaseException:
             self._close_bus()
             raise
@@ -285,6 +303,30 @@ class World:
         self._announced_s: dict[str, float] = {}
 
     # -- set-up ---------------------------------------------------------------------------------
+    def _wait_for_agents(self, wait_s: float) -> None:
+        """Wait until every robot is hosted; with workers, give up as soon as one has died."""
+        robots = list(self.robots)
+        if self.workers is None:
+            self.exchange.wait_for_agents(robots, wait_s)
+            return
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                self.exchange.wait_for_agents(
+                    robots, min(1.0, max(deadline - time.monotonic(), 0.01))
+                )
+                return
+            except MessageError:
+                dead = self.workers.dead()
+                if dead:
+                    raise FleetError(
+                        "worker processes failed before the run started: "
+                        + ", ".join(f"{name} (exit code {code})" for name, code in dead)
+                        + "; their errors are printed above"
+                    ) from None
+                if time.monotonic() >= deadline:
+                    raise
+
     def _plugin(self, kind: str, loader: Callable[..., Any]) -> Any:
         """Load the scenario's `kind` plugin; a failure names the scenario file and its table."""
         choice = getattr(self.scenario, kind)
@@ -546,7 +588,7 @@ class World:
                     "agent handed back job %s of robot %s, not its own; ignored", hb.job, hb.robot
                 )
                 continue
-            self._hand_back(robot, rec, f"handed back: {hb.reason}")
+            self._hand_back(robot, rec, f"handed back: {hb.reason}", blocked=True)
         for event in exchange.take_events():
             self._bus_event(event)
         if announcements:
@@ -583,10 +625,14 @@ class World:
                     self.recorder.event(t, "rejoined", "", robot.id, event.agent)
             self._request_dispatch()
 
-    def _hand_back(self, robot: RobotState, rec: JobRecord, reason: str) -> None:
+    def _hand_back(
+        self, robot: RobotState, rec: JobRecord, reason: str, blocked: bool = False
+    ) -> None:
         """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
 
-        A print under way is lost with the hand-back: the next robot prints the part anew.
+        A print under way is lost with the hand-back: the next robot prints the part anew. A
+        robot that gave the job back because it is `blocked` is not given it again (a robot
+        whose agent failed may be, once it is back); when every robot has, the job fails.
         """
         t = self.env.now
         if rec is robot.job:
@@ -603,10 +649,13 @@ class World:
         rec.turned_rad = 0.0
         rec.quality = None
         rec.handbacks += 1
-        rec.handed_back_by.add(robot.id)
+        if blocked:
+            rec.handed_back_by.add(robot.id)
         self.stats["jobs_handed_back"] += 1
         self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
-        if rec.handbacks > self.scenario.jobs.max_handbacks:
+        if rec.handbacks > self.scenario.jobs.max_handbacks or rec.handed_back_by >= set(
+            self.robots
+        ):
             rec.failed_s, rec.failure = t, reason
             self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
             log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)
@@ -891,16 +940,24 @@ class World:
         idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
         if not open_jobs or not idle:
             return
-        self._apply_assignments(open_jobs, self.dispatcher.assign)
+        exclude: set[str] = set()
+        for _ in range(len(self.robots)):
+            declined = self._apply_assignments(open_jobs, self.dispatcher.assign, exclude=exclude)
+            if not declined:
+                return
+            # Ask again for the jobs given to robots that had handed them back, without those.
+            exclude |= {robot for _, robot in declined}
+            open_jobs = [rec for rec, _ in declined]
 
-    def _statuses(self) -> list[RobotStatus]:
-        """The robots as dispatchers see them (faulted robots are left out: they take no jobs)."""
+    def _statuses(self, exclude: set[str] = frozenset()) -> list[RobotStatus]:
+        """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
+        and so are those in `exclude`)."""
         return [
             RobotStatus(
                 r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
             )
             for r in self.robots.values()
-            if not r.faulted
+            if not r.faulted and r.id not in exclude
         ]
 
     def _award(self, bids: list[Bid]) -> None:
@@ -927,15 +984,22 @@ class World:
         )
 
     def _apply_assignments(
-        self, open_jobs: list[JobRecord], choose: Callable[..., Any], queue: bool = False
-    ) -> None:
+        self,
+        open_jobs: list[JobRecord],
+        choose: Callable[..., Any],
+        queue: bool = False,
+        exclude: set[str] = frozenset(),
+    ) -> list[tuple[JobRecord, str]]:
         """Ask `choose(jobs, statuses, context)` for assignments and apply the valid ones; with
-        `queue`, a busy robot may take a job behind its current one."""
+        `queue`, a busy robot may take a job behind its current one. Returns the assignments
+        declined because the robot had handed that job back."""
         by_id = {rec.job.id: rec for rec in open_jobs}
         context = DispatchContext(self.env.now, self.floor, self.planner)
         name = self.scenario.dispatcher.name
         try:
-            assignments = list(choose([rec.job for rec in open_jobs], self._statuses(), context))
+            assignments = list(
+                choose([rec.job for rec in open_jobs], self._statuses(exclude), context)
+            )
         except Exception:  # a plugin may raise anything; jobs stay open for the next try
             self.stats["dispatcher_errors"] += 1
             first = self.stats["dispatcher_errors"] == 1
@@ -946,8 +1010,9 @@ class World:
                 self.env.now,
                 exc_info=first,
             )
-            return
+            return []
         taken_jobs: set[str] = set()
+        declined: list[tuple[JobRecord, str]] = []
         for a in assignments:
             valid = isinstance(a, Assignment)
             rec = by_id.get(a.job) if valid else None
@@ -960,6 +1025,11 @@ class World:
                 self.stats["assignments_rejected"] += 1
                 log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
                 continue
+            if robot.id in rec.handed_back_by:
+                # It gave this job back as blocked: the job waits for another robot.
+                self.stats["assignments_declined"] += 1
+                declined.append((rec, robot.id))
+                continue
             taken_jobs.add(a.job)
             rec.robot, rec.assigned_s = robot.id, self.env.now
             self._announce.discard(rec.job.id)
@@ -968,6 +1038,7 @@ class World:
             else:
                 robot.queue.append(rec)
             self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
+        return declined
 
     # -- running --------------------------------------------------------------------------------
     def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
