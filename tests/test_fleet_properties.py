@@ -27,7 +27,9 @@ def both_ways(at: float, i: int) -> ScriptedJob:
     return ScriptedJob(at, to, via=(via,))
 
 
-@settings(max_examples=25, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(
+    max_examples=25, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
 @given(
     floor=random_floor(),
     robots=st.integers(2, 4),
@@ -77,7 +79,9 @@ def test_followers_never_collide_on_random_floors(floor, robots, dispatcher, gap
     assert s["distance_m"] >= 1.0
 
 
-@settings(max_examples=6, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(
+    max_examples=6, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
 @given(floor=random_floor(), gap=st.floats(0.0, 5.0))
 def test_mpc_robots_never_collide_on_random_floors(floor, gap):
     # Two MPC robots with a short horizon (5 s at a 0.5 s period), sent past each other.
