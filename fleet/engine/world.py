@@ -27,6 +27,7 @@ import numpy as np
 import simpy
 
 from fleet.bus import AgentHost, Exchange
+from fleet.bus.exchange import BusEvent
 from fleet.engine.agents import (
     WorkerPool,
     build_controllers,
@@ -594,7 +595,7 @@ class World:
         if announcements:
             self._award(list(exchange.bids))
 
-    def _bus_event(self, event: Any) -> None:
+    def _bus_event(self, event: BusEvent) -> None:
         """An agent left, was lost or (re)joined: orphan its robots, or take them back."""
         t = self.env.now
         robots = [self.robots[r] for r in event.robots if r in self.robots]
