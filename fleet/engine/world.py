@@ -18,6 +18,7 @@ import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -950,7 +951,7 @@ class World:
             exclude |= {robot for _, robot in declined}
             open_jobs = [rec for rec, _ in declined]
 
-    def _statuses(self, exclude: set[str] = frozenset()) -> list[RobotStatus]:
+    def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
         """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
         and so are those in `exclude`)."""
         return [
@@ -989,7 +990,7 @@ class World:
         open_jobs: list[JobRecord],
         choose: Callable[..., Any],
         queue: bool = False,
-        exclude: set[str] = frozenset(),
+        exclude: AbstractSet[str] = frozenset(),
     ) -> list[tuple[JobRecord, str]]:
         """Ask `choose(jobs, statuses, context)` for assignments and apply the valid ones; with
         `queue`, a busy robot may take a job behind its current one. Returns the assignments
