@@ -200,7 +200,7 @@ def test_a_fallback_brakes_rather_than_follow_its_old_plan_into_another_robot() 
     # The solver fails from now on, and a robot turns up on the old plan's last point.
     controller.time_limit_s = 1e-6
     assert controller._model is not None
-    controller._model.highs.setOptionValue("time_limit", 1e-6)
+    controller._model.time_limit_s = 1e-6
     end = (float(plan[-1, 1]), float(plan[-1, 2]))
     run.other = lambda t: end
     here, (vx, vy) = run.p.copy(), map(float, run.v)
@@ -222,7 +222,7 @@ def test_with_no_robot_on_it_the_fallback_still_follows_the_old_plan() -> None:
         run.step()
     controller.time_limit_s = 1e-6
     assert controller._model is not None
-    controller._model.highs.setOptionValue("time_limit", 1e-6)
+    controller._model.time_limit_s = 1e-6
     expected = run.commands[-1].plan[2]  # the old plan's next sample
     cmd = run.step()
     assert cmd.status is ControlStatus.FALLBACK

@@ -18,11 +18,16 @@ formulation, for horizon steps k = 0..N with step dt:
 Per step only bounds change: p, v (measured state, caps, reachable boxes), z (corridor: a 0
 upper bound switches a region off for a step) and the right-hand sides of the tracking rows
 (the reference). Rows keeping clear of other robots (`separation`) change in number every
-step; they are appended to the HiGHS model for one solve and removed after it. Two ways to push
-the rest into HiGHS (`Interface`): through Pyomo's persistent interface (mutable Params,
-``update_parameters``) or written straight into the HiGHS object that interface holds, by the
-column/row indices it assigned (no Pyomo expression re-evaluation: 1.2x HiGHS time instead of
-~2x; see docs/mpc.md).
+step; they are added for one solve only. Two ways to push the rest into HiGHS (`Interface`):
+through Pyomo's persistent interface (mutable Params, ``update_parameters``) or written straight
+into a copy of the model that interface built, by the column/row indices it assigned (no Pyomo
+expression re-evaluation: 1.2x HiGHS time instead of ~2x; see docs/mpc.md).
+
+Every direct solve runs in a new HiGHS object holding a copy of the trip's model (0.1 ms), so
+that its result depends on its inputs only. A reused object checks the MIP start against its
+lifetime clock: once a trip's solves have added up to ``time_limit_s``, HiGHS silently stops
+using the start, and when that happens depends on the wall clock (two runs of the same fleet
+diverged there; docs/mpc.md, "Reproducible solves").
 """
 
 from __future__ import annotations
@@ -91,6 +96,8 @@ class Solution:
     columns: np.ndarray | None = None  # the raw column values (for warm starts)
     #: The separation columns' values (binaries, then slacks) when the solve had any.
     separation: np.ndarray | None = None
+    #: Branch-and-bound nodes HiGHS explored (0: the MIP start or the root settled it).
+    nodes: int = 0
 
 
 class TripModel:
@@ -130,12 +137,14 @@ class TripModel:
         self.model = _build(trip, horizon, dt, a_max, v_robot, weights)
         self.solver = PersistentHighs()
         self.solver.config.timer = None
-        self._options = dict(HIGHS_OPTIONS, time_limit=float(time_limit_s))
         self.solver.set_instance(self.model)
+        #: The persistent interface's HiGHS object (solved in only by the "pyomo" interface).
         self.highs: highspy.Highs = self.solver._solver_model
-        for key, value in self._options.items():
+        for key, value in self._options().items():
             self.highs.setOptionValue(key, value)
         self._index()
+        # The model as built: each direct solve starts from a copy (its bounds are rewritten).
+        self._lp = self.highs.getLp()
         cfg = self.solver.config.auto_updates
         # Only Params change between solves; skip the structural scans.
         for name in (
@@ -150,6 +159,17 @@ class TripModel:
         ):
             setattr(cfg, name, False)
         cfg.update_parameters = True
+
+    def _options(self) -> dict[str, object]:
+        return dict(HIGHS_OPTIONS, time_limit=float(self.time_limit_s))
+
+    def _fresh_highs(self) -> highspy.Highs:
+        """A new HiGHS object holding the trip's model as built (no history, no clock)."""
+        h = highspy.Highs()
+        for key, value in self._options().items():
+            h.setOptionValue(key, value)
+        h.passModel(self._lp)
+        return h
 
     @property
     def binaries(self) -> int:
@@ -192,45 +212,51 @@ class TripModel:
         """Push `data` into the model, solve, and read the plan.
 
         `separation` (rows keeping clear of other robots, `separation.build_separation`) is
-        appended to the HiGHS model for this solve only, in both interfaces (it is not part of
-        the Pyomo model: its size changes every step), and removed again afterwards. A
-        separation no plan can meet is reported `INFEASIBLE` without asking HiGHS.
+        added for this solve only, in both interfaces (it is not part of the Pyomo model: its
+        size changes every step). A separation no plan can meet is reported `INFEASIBLE`
+        without asking HiGHS.
+
+        The direct interface solves in a new HiGHS object (see the module); the "pyomo"
+        interface in the persistent one, with its previous solution cleared first (else
+        HiGHS starts from it, as long as the lifetime clock allows, see the module).
         """
         if separation is not None and separation.infeasible:
             return Solution(SolverOutcome.INFEASIBLE, 0.0)
         extra = separation is not None and separation.groups > 0
-        if extra:
-            assert separation is not None
-            self._append(separation)
-            if warm is not None:
-                p = warm[self._p_cols].reshape(self.N + 1, 2)
-                warm = np.concatenate([warm, separation.start(p)])
-        try:
-            if self.interface is Interface.DIRECT:
-                self._write_direct(data)
-                if warm is not None:
-                    self._warm_start(warm)
-                t0 = time.perf_counter()
-                self.highs.run()
-                solver_s = time.perf_counter() - t0
-            else:
-                self._write_params(data)
-                before = self.highs.getRunTime()
-                opts = self.solver.config
-                opts.load_solutions = False
-                opts.raise_exception_on_nonoptimal_result = False
-                opts.time_limit = self.time_limit_s
-                opts.solver_options = {k: v for k, v in self._options.items() if k != "time_limit"}
-                self.solver.solve(self.model)
-                solver_s = self.highs.getRunTime() - before
-            return self._read(solver_s)
-        finally:
+        if self.interface is Interface.DIRECT:
+            h = self._fresh_highs()
             if extra:
-                self._remove()
-
-    def _append(self, sep: Separation) -> None:
-        """Add `sep`'s binaries, slacks and rows after the model's own columns and rows."""
+                assert separation is not None
+                self._append(h, separation)
+                if warm is not None:
+                    p = warm[self._p_cols].reshape(self.N + 1, 2)
+                    warm = np.concatenate([warm, separation.start(p)])
+            self._write_direct(h, data)
+            if warm is not None:
+                _warm_start(h, warm)
+            t0 = time.perf_counter()
+            h.run()
+            return self._read(h, time.perf_counter() - t0)
         h = self.highs
+        h.clearSolver()
+        added = self._append(h, separation) if extra and separation is not None else None
+        try:
+            self._write_params(data)
+            before = h.getRunTime()
+            opts = self.solver.config
+            opts.load_solutions = False
+            opts.raise_exception_on_nonoptimal_result = False
+            opts.time_limit = self.time_limit_s
+            opts.solver_options = {k: v for k, v in self._options().items() if k != "time_limit"}
+            self.solver.solve(self.model)
+            return self._read(h, h.getRunTime() - before)
+        finally:
+            if added is not None:
+                _remove(h, *added)
+
+    def _append(self, h: highspy.Highs, sep: Separation) -> tuple[int, int, int, int]:
+        """Add `sep`'s binaries, slacks and rows after the model's own columns and rows in
+        `h`; returns where they went (first column, columns, first row, rows)."""
         n_bin, n_grp = sep.binaries, sep.groups
         base = h.getNumCol()
         n_new = n_bin + n_grp
@@ -271,17 +297,9 @@ class TripModel:
         h.addRows(
             n_rows, lower, np.full(n_rows, highspy.kHighsInf), len(index), starts, index, value
         )
-        self._added = (base, n_new, h.getNumRow() - n_rows, n_rows)
+        return base, n_new, h.getNumRow() - n_rows, n_rows
 
-    def _remove(self) -> None:
-        """Take the last solve's separation columns and rows out again."""
-        base, n_cols, first_row, n_rows = self._added
-        h = self.highs
-        h.deleteRows(n_rows, np.arange(first_row, first_row + n_rows, dtype=np.int32))
-        h.deleteCols(n_cols, np.arange(base, base + n_cols, dtype=np.int32))
-
-    def _write_direct(self, d: StepData) -> None:
-        h = self.highs
+    def _write_direct(self, h: highspy.Highs, d: StepData) -> None:
         N = self.N
         lo = np.concatenate([d.p_lo[: N + 1].ravel(), d.v_lo.ravel(), np.zeros(len(self._z_cols))])
         hi = np.concatenate([d.p_hi[: N + 1].ravel(), d.v_hi.ravel(), d.z_ub.ravel()])
@@ -308,14 +326,7 @@ class TripModel:
             for j in range(S):
                 m.z_ub[k, j] = float(d.z_ub[k - 1, j])
 
-    def _warm_start(self, columns: np.ndarray) -> None:
-        sol = highspy.HighsSolution()
-        sol.col_value = columns.tolist()
-        sol.value_valid = True
-        self.highs.setSolution(sol)
-
-    def _read(self, solver_s: float) -> Solution:
-        h = self.highs
+    def _read(self, h: highspy.Highs, solver_s: float) -> Solution:
         status = h.getModelStatus()
         has_solution = h.getInfo().primal_solution_status == 2
         S = highspy.HighsModelStatus
@@ -327,8 +338,9 @@ class TripModel:
             outcome = SolverOutcome.FEASIBLE if has_solution else SolverOutcome.NO_SOLUTION
         else:
             outcome = SolverOutcome.ERROR
+        nodes = int(h.getInfo().mip_node_count)
         if not outcome.usable:
-            return Solution(outcome, solver_s)
+            return Solution(outcome, solver_s, nodes=nodes)
         col = np.asarray(h.getSolution().col_value)
         N = self.N
         z = col[self._z_cols].reshape(N - 1, len(self.trip.regions))
@@ -341,6 +353,7 @@ class TripModel:
             regions=np.argmax(z, axis=1),
             columns=col[: self._n_cols],
             separation=col[self._n_cols :].copy() if len(col) > self._n_cols else None,
+            nodes=nodes,
         )
 
     def shifted_columns(self, sol: Solution, data: StepData) -> np.ndarray:
@@ -363,6 +376,19 @@ class TripModel:
         col[self._ev_cols] = np.abs(v[1:] - data.v_ref[1:]).ravel()
         col[self._eu_cols] = np.abs(u).ravel()
         return col
+
+
+def _warm_start(h: highspy.Highs, columns: np.ndarray) -> None:
+    sol = highspy.HighsSolution()
+    sol.col_value = columns.tolist()
+    sol.value_valid = True
+    h.setSolution(sol)
+
+
+def _remove(h: highspy.Highs, first_col: int, n_cols: int, first_row: int, n_rows: int) -> None:
+    """Take a solve's separation columns and rows out of `h` again."""
+    h.deleteRows(n_rows, np.arange(first_row, first_row + n_rows, dtype=np.int32))
+    h.deleteCols(n_cols, np.arange(first_col, first_col + n_cols, dtype=np.int32))
 
 
 def _build(
