@@ -182,6 +182,14 @@ def _scenario_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dispatcher", help="dispatcher plugin name (see `fleet plugins`)")
     p.add_argument("--duration", type=float, help="simulated seconds")
     p.add_argument("--seed", type=int, help="random seed")
+    p.add_argument(
+        "--latency",
+        metavar="none|measured|SECONDS",
+        help="compute latency: a command takes effect this long after its tick (default: the "
+        "scenario's [scenario] latency, else none). 'measured' uses each solve's measured step "
+        "time, so the run depends on this machine and its digest is not reproducible; a "
+        "number of seconds is reproducible",
+    )
 
 
 def _output_arguments(p: argparse.ArgumentParser) -> None:
@@ -207,6 +215,7 @@ def _scenario(args: argparse.Namespace):
         dispatcher=getattr(args, "dispatcher", None),
         duration=getattr(args, "duration", None),
         seed=getattr(args, "seed", None),
+        latency=getattr(args, "latency", None),
     )
 
 
@@ -485,6 +494,16 @@ def _kpi_table(console: Console, s: dict) -> None:
                 f"{solver['median_ms']:.1f} / {solver['p95_ms']:.1f} / {solver['max_ms']:.1f} ms",
             ),
             ("solver fallbacks", str(solver["fallbacks"])),
+        ]
+    latency = s.get("latency") or {}
+    if latency.get("commands"):
+        rows[-1:-1] = [
+            (
+                f"latency ({latency['mode']}) median / p95 / max",
+                f"{latency['median_ms']:.1f} / {latency['p95_ms']:.1f} / "
+                f"{latency['max_ms']:.1f} ms",
+            ),
+            ("commands later than their period", str(latency["late"])),
         ]
     for robot, at in (s.get("arrivals") or {}).items():
         rows.insert(-1, (f"arrival {robot}", "-" if at is None else f"{at:.1f} s"))

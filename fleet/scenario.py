@@ -11,7 +11,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from fleet.errors import ScenarioError
 from fleet.printing import TASK_KINDS, PrintSchedule, PrintTask
@@ -27,6 +27,7 @@ __all__ = [
     "BusConfig",
     "QualityConfig",
     "Scenario",
+    "Latency",
     "load_scenario",
     "parse_scenario",
     "default_scenario",
@@ -35,6 +36,14 @@ __all__ = [
 
 #: The source checkout (maps/ and scenarios/ live here in a development install).
 REPO_ROOT = Path(__file__).resolve().parent.parent
+
+#: Compute latency (`Scenario.latency`): None for none, "measured", or fixed seconds.
+Latency = float | Literal["measured"] | None
+
+_LATENCY_RULE = (
+    'must be "none" (commands apply at once), "measured" (each command waits its '
+    "controller's measured step time) or a number of seconds >= 0 (a fixed latency)"
+)
 
 
 @dataclass(frozen=True)
@@ -184,6 +193,12 @@ class Scenario:
     #: When set, every rough area of the map is also a speed zone with this limit (m/s): the
     #: paper's "varying" strategy, slow over bumps and rough floor.
     rough_v_max: float | None = None
+    #: Compute latency (``[scenario] latency``): how long after its tick a command takes
+    #: effect. None ("none"): at the tick, as the paper's model assumes; ``"measured"``: after
+    #: the controller's own measured step time (`SolveReport.step_s`; 0 without a report), so
+    #: the run depends on the wall clock; a number: that many seconds for every controller
+    #: command (reproducible). See docs/fleet.md "Compute latency".
+    latency: Latency = None
 
     def print_schedule(self, job: ScriptedJob) -> PrintSchedule | None:
         """The print schedule of a scripted job under this scenario's caps (None: no print)."""
@@ -200,8 +215,13 @@ class Scenario:
         dispatcher: str | None = None,
         duration: float | None = None,
         seed: int | None = None,
+        latency: str | float | None = None,
     ) -> Scenario:
-        """A copy with command-line overrides applied and validated."""
+        """A copy with command-line overrides applied and validated.
+
+        `latency` takes what ``--latency`` takes: ``"none"``, ``"measured"`` or seconds >= 0
+        (a number or its text); None leaves the scenario's setting.
+        """
         src = "command line"
         out = self
         if map is not None:
@@ -228,6 +248,8 @@ class Scenario:
             out = replace(out, duration_s=_positive(src, "--duration", duration))
         if seed is not None:
             out = replace(out, seed=_seed(src, "--seed", seed))
+        if latency is not None:
+            out = replace(out, latency=_latency(src, "--latency", latency, parse_text=True))
         return out
 
 
@@ -276,6 +298,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     deadlock = _non_negative(
         src, "scenario.deadlock_after_s", sc.take("deadlock_after_s", (int, float), 30.0)
     )
+    latency = _latency(src, "scenario.latency", sc.take_any("latency", "none"))
     sc.finish()
 
     groups = root.take("robots", (dict, list), {})
@@ -432,7 +455,35 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         classify=classify,
         quality=quality,
         rough_v_max=rough,
+        latency=latency,
     )
+
+
+def _latency(src: str, fld: str, value: Any, *, parse_text: bool = False) -> Latency:
+    """Read a latency setting: "none", "measured" or seconds >= 0 (with `parse_text`, also
+    seconds written as text, as on the command line)."""
+    if isinstance(value, str):
+        word = value.strip()
+        if word == "none":
+            return None
+        if word == "measured":
+            return "measured"
+        if parse_text:
+            try:
+                number = float(word)
+            except ValueError:
+                number = math.nan
+            if math.isfinite(number) and number >= 0:
+                return number
+        raise ScenarioError(src, fld, value, _LATENCY_RULE)
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value < 0
+    ):
+        raise ScenarioError(src, fld, value, _LATENCY_RULE)
+    return float(value)
 
 
 def _check_kind(src: str, fld: str, value: Any, kind: str) -> None:
@@ -557,6 +608,11 @@ class _Table:
             names = " or ".join(k.__name__ for k in kinds)
             raise ScenarioError(self.source, self.prefix + key, value, f"must be of type {names}")
         return value
+
+    def take_any(self, key: str, default: Any) -> Any:
+        """The value at `key` whatever its type (the caller checks it), or `default`."""
+        self.seen.add(key)
+        return self.data.get(key, default)
 
     def take_list(self, key: str, kind: Any, default: Any) -> Any:
         value = self.take(key, list, default)

@@ -16,8 +16,9 @@ import logging
 import math
 import tempfile
 import time
+from array import array
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,9 +65,9 @@ from fleet.plugins import (
     load_dispatcher,
 )
 from fleet.printing import CapSchedule, PrintSchedule, PrintTask
-from fleet.robot import DoubleIntegrator, brake_input
+from fleet.robot import DoubleIntegrator, brake_input, clip
 from fleet.safety import SafetyChecker, SafetyReport
-from fleet.scenario import Scenario, ScriptedJob
+from fleet.scenario import Latency, Scenario, ScriptedJob
 
 if TYPE_CHECKING:
     from fleet.quality import QualityModel
@@ -95,6 +96,9 @@ PLAN_STALE_S = 1.0
 #: `MAX_NEIGHBOURS` observations, and between samples a robot at most 0.5 m/s^2 strays
 #: a * dt^2 / 8 = 0.016 m from the chord.
 PLAN_SPACING_S = 0.5
+#: Effect times (s) this close to a step's start or end count as at it (compute latency):
+#: a latency of exactly one period takes effect at the next tick despite rounding.
+EFFECT_EPS_S = 1e-9
 
 
 @dataclass(slots=True)
@@ -144,6 +148,49 @@ class RobotState:
     #: Robots found blocking this one (deadlock), and until when its priority is raised.
     blockers: tuple[str, ...] = ()
     boosted_until: float = -math.inf
+    #: Compute latency (`Scenario.latency`): inputs waiting to take effect as ``(effect time,
+    #: ax, ay)`` in order of effect (clipped to a_max), the input in force (the last one that
+    #: took effect; 0 at the start), and the latency (s) of each controller command.
+    pending: list[tuple[float, float, float]] = field(default_factory=list)
+    in_force: tuple[float, float] = (0.0, 0.0)
+    latencies: array = field(default_factory=lambda: array("d"))
+
+    def delay(self, t: float, latency: float, ax: float, ay: float) -> None:
+        """Queue input (`ax`, `ay`), computed at `t`, to take effect at ``t + latency``.
+
+        Each axis is clipped to a_max first, so blends of inputs stay within the bounds. Pending
+        inputs that would take effect no earlier are superseded: they never apply.
+        """
+        a = self.spec.a_max
+        effect = t + latency
+        while self.pending and self.pending[-1][0] >= effect - EFFECT_EPS_S:
+            self.pending.pop()
+        self.pending.append((effect, clip(ax, a), clip(ay, a)))
+
+    def step_input(self, t: float, dt: float) -> tuple[float, float]:
+        """The input for the step [`t`, `t` + `dt`): the time-weighted mean of the inputs in
+        force during it (pending ones taking effect at their effect times).
+
+        When one input holds over the whole step it is returned as it is (no arithmetic), so
+        a latency of 0 moves the robot exactly as no latency does.
+        """
+        ax, ay = self.in_force
+        sx = sy = 0.0
+        at = 0.0  # offset into the step up to which (sx, sy) integrates
+        while self.pending and self.pending[0][0] - t < dt - EFFECT_EPS_S:
+            effect, nx, ny = self.pending.pop(0)
+            offset = effect - t
+            if offset > at + EFFECT_EPS_S:
+                sx += ax * (offset - at)
+                sy += ay * (offset - at)
+                at = offset
+            ax, ay = nx, ny
+        self.in_force = (ax, ay)
+        if at == 0.0:
+            return ax, ay
+        sx += ax * (dt - at)
+        sy += ay * (dt - at)
+        return sx / dt, sy / dt
 
     def caps(self) -> CapSchedule:
         """Every print-cap piece this robot has been under so far (for the safety checker)."""
@@ -508,7 +555,11 @@ class World:
             if robot.job is not None and _at_rest_near(robot, robot.goal, tol):
                 self._arrive(robot)
             command = yield self._request(robot)
-            robot.ax, robot.ay = command.ax, command.ay
+            if self.scenario.latency is None:
+                robot.ax, robot.ay = command.ax, command.ay
+            else:
+                # `_bus_round` queued the command with its latency: blend what is in force.
+                robot.ax, robot.ay = robot.step_input(env.now, period)
             robot.tick += 1
             yield env.timeout(period)
 
@@ -532,8 +583,10 @@ class World:
         self._round += 1
         announcements = self._announcements(t)
         commands = self.exchange.round(self._round, t, observations, announcements)
+        latency = self.scenario.latency
         for (robot, ev), obs in zip(pending, observations, strict=True):
             cmd = commands.get(robot.id)
+            from_controller = cmd is not None
             if cmd is None:
                 self.stats["commands_missing"] += 1
                 ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
@@ -541,6 +594,17 @@ class World:
                 robot.plan = robot.thinned_plan = ()  # braking, not following its plan
             elif cmd.status is not ControlStatus.OK:
                 self.stats[f"commands_{cmd.status.value}"] += 1
+            if latency is not None:
+                delay = 0.0  # commands the engine makes itself (brakes) apply at once
+                if from_controller:
+                    if latency == "measured":
+                        # A controller that reports no solve counts as instant.
+                        step = cmd.solve.step_s if cmd.solve is not None else 0.0
+                        delay = step if step > 0.0 else 0.0
+                    else:
+                        delay = latency
+                    robot.latencies.append(delay)
+                robot.delay(t, delay, cmd.ax, cmd.ay)
             if cmd.plan:
                 robot.plan = cmd.plan  # an empty plan means the previous one still holds
                 robot.thinned_plan = _thin(cmd.plan, PLAN_SPACING_S)
@@ -1174,6 +1238,7 @@ class World:
             },
             "quality": self._quality_summary(),
             "solver": self._solver_summary(),
+            "latency": _latency_summary(sc.latency, self.robots.values()),
             "per_robot": per_robot,
             "engine": {
                 "bus_rounds": self._round,
@@ -1295,6 +1360,34 @@ class World:
                 overhead_ratio=round(float(step.sum() / max(solver.sum(), 1e-12)), 3),
             )
         return out
+
+
+def _latency_summary(mode: Latency, robots: Iterable[RobotState]) -> dict[str, Any]:
+    """The ``latency`` object of summary.json: the mode and, over the controllers' commands,
+    the median, p95 and largest latency, and how many were `late` (a latency of at least the
+    robot's period: the command missed its own step). The keys are the same in every mode."""
+    out: dict[str, Any] = {
+        "mode": "none" if mode is None else "measured" if mode == "measured" else "fixed",
+        "commands": 0,
+        "median_ms": None,
+        "p95_ms": None,
+        "max_ms": None,
+        "late": 0,
+    }
+    per_robot = [
+        (np.frombuffer(r.latencies, dtype=float), r.spec.period) for r in robots if r.latencies
+    ]
+    if mode is None or not per_robot:
+        return out
+    ms = np.concatenate([s for s, _ in per_robot]) * 1e3
+    out.update(
+        commands=int(ms.size),
+        median_ms=round(float(np.median(ms)), 3),
+        p95_ms=round(float(np.percentile(ms, 95)), 3),
+        max_ms=round(float(ms.max()), 3),
+        late=sum(int(np.count_nonzero(s >= period - EFFECT_EPS_S)) for s, period in per_robot),
+    )
+    return out
 
 
 def _at_rest_near(robot: RobotState, goal: tuple[float, float] | None, tol: float) -> bool:
