@@ -188,7 +188,8 @@ def _scenario_arguments(p: argparse.ArgumentParser) -> None:
         help="compute latency: a command takes effect this long after its tick (default: the "
         "scenario's [scenario] latency, else none). 'measured' uses each solve's measured step "
         "time, so the run depends on this machine and its digest is not reproducible; a "
-        "number of seconds is reproducible",
+        "number of seconds is reproducible. Meant for the MPC: the follower is not "
+        "latency-tolerant (docs/fleet.md)",
     )
 
 

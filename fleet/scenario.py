@@ -28,6 +28,7 @@ __all__ = [
     "QualityConfig",
     "Scenario",
     "Latency",
+    "parse_latency",
     "load_scenario",
     "parse_scenario",
     "default_scenario",
@@ -249,7 +250,7 @@ class Scenario:
         if seed is not None:
             out = replace(out, seed=_seed(src, "--seed", seed))
         if latency is not None:
-            out = replace(out, latency=_latency(src, "--latency", latency, parse_text=True))
+            out = replace(out, latency=parse_latency(src, "--latency", latency, parse_text=True))
         return out
 
 
@@ -298,7 +299,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     deadlock = _non_negative(
         src, "scenario.deadlock_after_s", sc.take("deadlock_after_s", (int, float), 30.0)
     )
-    latency = _latency(src, "scenario.latency", sc.take_any("latency", "none"))
+    latency = parse_latency(src, "scenario.latency", sc.take_any("latency", "none"))
     sc.finish()
 
     groups = root.take("robots", (dict, list), {})
@@ -459,9 +460,10 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     )
 
 
-def _latency(src: str, fld: str, value: Any, *, parse_text: bool = False) -> Latency:
+def parse_latency(src: str, fld: str, value: Any, *, parse_text: bool = False) -> Latency:
     """Read a latency setting: "none", "measured" or seconds >= 0 (with `parse_text`, also
-    seconds written as text, as on the command line)."""
+    seconds written as text, as on the command line); `ScenarioError` naming `src` and `fld`
+    otherwise."""
     if isinstance(value, str):
         word = value.strip()
         if word == "none":

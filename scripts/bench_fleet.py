@@ -9,9 +9,17 @@ processes, and robot-steps per second of a large follower fleet.
    ``--baseline-seconds`` (60) simulated: robot-steps per wall second, in this process and with
    2 workers.
 
+3. With ``--balance``: why 2 workers cannot double the MPC fleet's pace. The fleet runs in this
+   process once, every controller step and bid timed per robot and round; printed: how many robots
+   solve per round, each robot's share of the work, and the speed-up of 2 workers over 1 that
+   the lockstep allows (every round waits for its slowest worker) with the contiguous shares
+   `fleet run --workers 2` uses, and with the best split of every single round. ``--rate``
+   sets the job rate (a busy fleet spreads the work).
+
 Nothing is asserted: the figures go in notes and the README.
 
     python scripts/bench_fleet.py [--minutes 30] [--robots 20] [--workers 0 1 2]
+    python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200]
 """
 
 from __future__ import annotations
@@ -20,7 +28,10 @@ import argparse
 import time
 from dataclasses import replace
 
+import numpy as np
+
 from fleet.engine import World
+from fleet.engine.agents import split_robots
 from fleet.scenario import REPO_ROOT, load_scenario
 
 
@@ -32,6 +43,61 @@ def run(scenario, workers: int) -> tuple[dict, float]:
     return summary, setup
 
 
+def balance(scenario) -> None:
+    """Time every controller step of an in-process run per robot and round; print how the
+    work would spread over 2 workers."""
+    world = World(scenario)
+    assert world.host is not None
+    costs: dict[tuple[str, int], float] = {}
+
+    def timed(robot: str, method):
+        # Controller steps and bids (a path search each) both run on the robot's worker.
+        def call(obs, *args):
+            t0 = time.perf_counter()
+            out = method(obs, *args)
+            key = (robot, obs.tick)
+            costs[key] = costs.get(key, 0.0) + time.perf_counter() - t0
+            return out
+
+        return call
+
+    for robot, controller in world.host.controllers.items():
+        controller.compute = timed(robot, controller.compute)  # type: ignore[method-assign]
+        controller.bid = timed(robot, controller.bid)  # type: ignore[method-assign]
+    summary = world.run().summary
+    robots = sorted(world.host.controllers)
+    ticks = sorted({tick for _, tick in costs})
+    at = {tick: i for i, tick in enumerate(ticks)}
+    work = np.zeros((len(ticks), len(robots)))
+    for j, robot in enumerate(robots):
+        for (r, tick), c in costs.items():
+            if r == robot:
+                work[at[tick], j] = c
+    total = float(work.sum())
+    engine = summary["wall_time_s"] - total  # the engine's own serial share
+    solving = (work > 2e-3).sum(axis=1)  # robots whose step took a solve (> 2 ms)
+    shares = split_robots(robots, 2)
+    index = {r: j for j, r in enumerate(robots)}
+    per_share = [work[:, [index[r] for r in share]].sum(axis=1) for share in shares]
+    contiguous = float(np.maximum(*per_share).sum())
+    # No split can beat, in any round, half the round's work or its heaviest robot.
+    best = float(np.maximum(work.sum(axis=1) / 2, work.max(axis=1)).sum())
+    print(
+        f"{len(robots)} robots, {summary['sim_time_s']:g} simulated s, "
+        f"{summary['jobs']['completed']}/{summary['jobs']['released']} jobs delivered; "
+        f"wall {summary['wall_time_s']:.1f} s: controllers {total:.1f} s, engine {engine:.1f} s"
+    )
+    print(
+        f"robots solving per round: median {np.median(solving):g}, mean {solving.mean():.2f}; "
+        f"rounds with at most one: {np.mean(solving <= 1):.0%}"
+    )
+    heavy = sorted(zip(work.sum(axis=0), robots, strict=True), reverse=True)[:5]
+    print("heaviest robots: " + ", ".join(f"{r} {c / total:.0%}" for c, r in heavy))
+    print(f"speed-up of 2 workers over 1 the lockstep allows (engine share {engine:.1f} s):")
+    print(f"  contiguous shares: {(engine + total) / (engine + contiguous):.2f}")
+    print(f"  best split of every round: {(engine + total) / (engine + best):.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=30.0, help="simulated minutes (MPC fleet)")
@@ -40,14 +106,22 @@ def main() -> None:
     ap.add_argument("--baseline-robots", type=int, default=1000)
     ap.add_argument("--baseline-seconds", type=float, default=60.0)
     ap.add_argument("--skip-mpc", action="store_true")
+    ap.add_argument("--balance", action="store_true", help="only the work-balance analysis")
+    ap.add_argument("--rate", type=float, help="jobs per hour (default: the scenario's)")
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
+    if args.rate is not None:
+        base = replace(base, jobs=replace(base.jobs, rate_per_h=args.rate))
+    if args.balance:
+        balance(base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0))
+        return
     if not args.skip_mpc:
         sc = base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0)
         print(
             f"MPC fleet: {args.robots} robots, {args.minutes:g} simulated min on "
-            f"{sc.map.name}, auction, sensing {sc.sensing_radius_m:g} m"
+            f"{sc.map.name}, auction, {sc.jobs.rate_per_h:g} jobs/h, "
+            f"sensing {sc.sensing_radius_m:g} m"
         )
         print(
             f"{'workers':>7} {'setup s':>8} {'run s':>8} {'RTF':>6} {'solve med ms':>12} "

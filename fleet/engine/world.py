@@ -67,7 +67,7 @@ from fleet.plugins import (
 from fleet.printing import CapSchedule, PrintSchedule, PrintTask
 from fleet.robot import DoubleIntegrator, brake_input, clip
 from fleet.safety import SafetyChecker, SafetyReport
-from fleet.scenario import Latency, Scenario, ScriptedJob
+from fleet.scenario import Latency, Scenario, ScriptedJob, parse_latency
 
 if TYPE_CHECKING:
     from fleet.quality import QualityModel
@@ -150,10 +150,12 @@ class RobotState:
     boosted_until: float = -math.inf
     #: Compute latency (`Scenario.latency`): inputs waiting to take effect as ``(effect time,
     #: ax, ay)`` in order of effect (clipped to a_max), the input in force (the last one that
-    #: took effect; 0 at the start), and the latency (s) of each controller command.
+    #: took effect; 0 at the start), the latency (s) of each controller command that had one,
+    #: and (measured latency) the commands without a solve report, applied at once.
     pending: list[tuple[float, float, float]] = field(default_factory=list)
     in_force: tuple[float, float] = (0.0, 0.0)
     latencies: array = field(default_factory=lambda: array("d"))
+    instant: int = 0
 
     def delay(self, t: float, latency: float, ax: float, ay: float) -> None:
         """Queue input (`ax`, `ay`), computed at `t`, to take effect at ``t + latency``.
@@ -244,6 +246,8 @@ class World:
         if floor is not None and (workers or remote):
             # Agents elsewhere load the scenario's map file: they would not see this floor.
             raise ValueError("a World given its floor runs its agents in this process (workers=0)")
+        if scenario.latency is not None:  # a Scenario built in code skipped the file's checks
+            parse_latency(scenario.source, "scenario.latency", scenario.latency)
         self.scenario = scenario
         self.floor = load_run_floor(scenario, floor)
         self.rng = np.random.default_rng(scenario.seed)
@@ -597,13 +601,14 @@ class World:
             if latency is not None:
                 delay = 0.0  # commands the engine makes itself (brakes) apply at once
                 if from_controller:
-                    if latency == "measured":
-                        # A controller that reports no solve counts as instant.
-                        step = cmd.solve.step_s if cmd.solve is not None else 0.0
-                        delay = step if step > 0.0 else 0.0
-                    else:
+                    if latency != "measured":
                         delay = latency
-                    robot.latencies.append(delay)
+                        robot.latencies.append(delay)
+                    elif cmd.solve is not None:
+                        delay = max(cmd.solve.step_s, 0.0)
+                        robot.latencies.append(delay)
+                    else:
+                        robot.instant += 1  # reports no solve: counts as instant
                 robot.delay(t, delay, cmd.ax, cmd.ay)
             if cmd.plan:
                 robot.plan = cmd.plan  # an empty plan means the previous one still holds
@@ -1363,9 +1368,12 @@ class World:
 
 
 def _latency_summary(mode: Latency, robots: Iterable[RobotState]) -> dict[str, Any]:
-    """The ``latency`` object of summary.json: the mode and, over the controllers' commands,
-    the median, p95 and largest latency, and how many were `late` (a latency of at least the
-    robot's period: the command missed its own step). The keys are the same in every mode."""
+    """The ``latency`` object of summary.json: the mode and, over the controllers' commands
+    that waited (every one with a fixed latency; those with a solve report when measured), how
+    many, the median, p95 and largest latency, and how many were `late` (a latency of at least
+    the robot's period: the command missed its own step); `instant` counts the commands a
+    measured run applied at once (no solve report). The keys are the same in every mode."""
+    robots = list(robots)
     out: dict[str, Any] = {
         "mode": "none" if mode is None else "measured" if mode == "measured" else "fixed",
         "commands": 0,
@@ -1373,6 +1381,7 @@ def _latency_summary(mode: Latency, robots: Iterable[RobotState]) -> dict[str, A
         "p95_ms": None,
         "max_ms": None,
         "late": 0,
+        "instant": sum(r.instant for r in robots),
     }
     per_robot = [
         (np.frombuffer(r.latencies, dtype=float), r.spec.period) for r in robots if r.latencies
