@@ -75,7 +75,7 @@ def balance(scenario) -> None:
                 work[at[tick], j] = c
     total = float(work.sum())
     engine = summary["wall_time_s"] - total  # the engine's own serial share
-    solving = (work > 2e-3).sum(axis=1)  # robots whose step took a solve (> 2 ms)
+    solving = (work > 2e-3).sum(axis=1)  # robots that solved or bid (> 2 ms) in the round
     shares = split_robots(robots, 2)
     index = {r: j for j, r in enumerate(robots)}
     per_share = [work[:, [index[r] for r in share]].sum(axis=1) for share in shares]
