@@ -44,8 +44,8 @@ def run(scenario, workers: int) -> tuple[dict, float]:
 
 
 def balance(scenario) -> None:
-    """Time every controller step of an in-process run per robot and round; print how the
-    work would spread over 2 workers."""
+    """Time every controller step and bid of an in-process run per robot and round; print how
+    the work would spread over 2 workers."""
     world = World(scenario)
     assert world.host is not None
     costs: dict[tuple[str, int], float] = {}
@@ -68,16 +68,14 @@ def balance(scenario) -> None:
     robots = sorted(world.host.controllers)
     ticks = sorted({tick for _, tick in costs})
     at = {tick: i for i, tick in enumerate(ticks)}
+    index = {r: j for j, r in enumerate(robots)}
     work = np.zeros((len(ticks), len(robots)))
-    for j, robot in enumerate(robots):
-        for (r, tick), c in costs.items():
-            if r == robot:
-                work[at[tick], j] = c
+    for (robot, tick), c in costs.items():
+        work[at[tick], index[robot]] = c
     total = float(work.sum())
     engine = summary["wall_time_s"] - total  # the engine's own serial share
     solving = (work > 2e-3).sum(axis=1)  # robots that solved or bid (> 2 ms) in the round
     shares = split_robots(robots, 2)
-    index = {r: j for j, r in enumerate(robots)}
     per_share = [work[:, [index[r] for r in share]].sum(axis=1) for share in shares]
     contiguous = float(np.maximum(*per_share).sum())
     # No split can beat, in any round, half the round's work or its heaviest robot.

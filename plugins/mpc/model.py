@@ -24,10 +24,10 @@ into a copy of the model that interface built, by the column/row indices it assi
 expression re-evaluation: 1.2x HiGHS time instead of ~2x; see docs/mpc.md).
 
 Every direct solve runs in a new HiGHS object holding a copy of the trip's model (0.1 ms), so
-that its result depends on its inputs only. A reused object checks the MIP start against its
-lifetime clock: once a trip's solves have added up to ``time_limit_s``, HiGHS silently stops
-using the start, and when that happens depends on the wall clock (two runs of the same fleet
-diverged there; docs/mpc.md, "Reproducible solves").
+that its result depends on its inputs only. A reused object completes a MIP start against its
+lifetime clock: once a trip's solves have added up to ``time_limit_s``, HiGHS silently drops
+starts it has to complete, and when that happens depends on the wall clock (two runs of the
+same fleet diverged there; docs/mpc.md, "Reproducible solves").
 """
 
 from __future__ import annotations
