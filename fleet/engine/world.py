@@ -1355,16 +1355,23 @@ class World:
         if solves:
             solver = np.array([s.solver_s for s in solves]) * 1e3
             step = np.array([s.step_s for s in solves]) * 1e3
+            out.update(_spread_ms(solver))
             out.update(
-                median_ms=round(float(np.median(solver)), 3),
-                p95_ms=round(float(np.percentile(solver, 95)), 3),
-                max_ms=round(float(solver.max()), 3),
                 step_median_ms=round(float(np.median(step)), 3),
                 step_p95_ms=round(float(np.percentile(step, 95)), 3),
                 # The modelling layer's overhead: whole controller step over solver time.
                 overhead_ratio=round(float(step.sum() / max(solver.sum(), 1e-12)), 3),
             )
         return out
+
+
+def _spread_ms(ms: np.ndarray) -> dict[str, float]:
+    """``median_ms``, ``p95_ms`` and ``max_ms`` of times in ms, as summary.json writes them."""
+    return {
+        "median_ms": round(float(np.median(ms)), 3),
+        "p95_ms": round(float(np.percentile(ms, 95)), 3),
+        "max_ms": round(float(ms.max()), 3),
+    }
 
 
 def _latency_summary(mode: Latency, robots: Iterable[RobotState]) -> dict[str, Any]:
@@ -1389,11 +1396,9 @@ def _latency_summary(mode: Latency, robots: Iterable[RobotState]) -> dict[str, A
     if mode is None or not per_robot:
         return out
     ms = np.concatenate([s for s, _ in per_robot]) * 1e3
+    out.update(_spread_ms(ms))
     out.update(
         commands=int(ms.size),
-        median_ms=round(float(np.median(ms)), 3),
-        p95_ms=round(float(np.percentile(ms, 95)), 3),
-        max_ms=round(float(ms.max()), 3),
         late=sum(int(np.count_nonzero(s >= period - EFFECT_EPS_S)) for s, period in per_robot),
     )
     return out
