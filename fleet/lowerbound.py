@@ -48,6 +48,7 @@ from __future__ import annotations
 
 __all__ = ["LowerBound", "min_time_lower_bound", "envelope"]
 
+import logging
 import math
 import time
 from collections.abc import Sequence
@@ -60,7 +61,10 @@ import shapely
 
 from fleet.errors import NoPathError
 from fleet.floor.compiled import Floor
+from fleet.highs import new_highs, solve
 from fleet.printing import CapSchedule
+
+log = logging.getLogger("fleet.lowerbound")
 
 #: Slack (m) on region membership: the safety checker forgives this much rounding.
 POSITION_SLACK = 1e-6
@@ -197,6 +201,9 @@ def min_time_lower_bound(
         If `start` or `goal` lies outside the free space, or a parameter is out of range.
     NoPathError
         If `start` and `goal` lie in different connected parts of the free space.
+    fleet.highs.SolverError
+        If HiGHS fails on a MILP (an option refused, a model error), with HiGHS's message: no
+        bound is better than a silently weakened one.
     """
     for name, value in (("v_max", v_max), ("a_max", a_max), ("dt", dt)):
         if not (math.isfinite(value) and value > 0):
@@ -375,7 +382,7 @@ class _Trip:
                     [np.minimum(box[k, 0], box[k + 1, 0]), np.maximum(box[k, 1], box[k + 1, 1])]
                 )
             self._slot(model, hull, w, P, k, f, steps)
-        outcome, x = model.solve(time_limit_s)
+        outcome, x = model.solve(time_limit_s, f"lower bound MILP, {T} steps")
         if x is None:
             return outcome, None
         traj = np.column_stack([x[:P:2], x[1:P:2], x[P : 2 * P : 2], x[P + 1 : 2 * P : 2]])
@@ -473,14 +480,11 @@ class _Model:
         self.index.extend(index)
         self.value.extend(value)
 
-    def solve(self, time_limit_s: float) -> tuple[_Outcome, np.ndarray | None]:
+    def solve(self, time_limit_s: float, what: str) -> tuple[_Outcome, np.ndarray | None]:
         if self.infeasible:
             return _Outcome.INFEASIBLE, None
         inf = highspy.kHighsInf
-        h = highspy.Highs()
-        for option, value in _OPTIONS.items():
-            h.setOptionValue(option, value)
-        h.setOptionValue("time_limit", float(time_limit_s))
+        h = new_highs({**_OPTIONS, "time_limit": float(time_limit_s)})
         lo = np.concatenate(self.lo)
         hi = np.concatenate(self.hi)
         h.addVars(self.n, lo, hi)
@@ -501,21 +505,19 @@ class _Model:
             np.asarray(self.index, dtype=np.int32),
             np.asarray(self.value, dtype=float),
         )
-        h.run()
-        status = h.getModelStatus()
-        if status == highspy.HighsModelStatus.kInfeasible:
+        # A failed run (option refused, model error) raises SolverError with HiGHS's message:
+        # taking it for "unknown" would quietly weaken the bound.
+        result = solve(h, what)
+        if result.status == highspy.HighsModelStatus.kInfeasible:
             return _Outcome.INFEASIBLE, None
-        if status == highspy.HighsModelStatus.kOptimal or (
-            h.getInfo().primal_solution_status == 2  # kSolutionStatusFeasible
-        ):
+        if result.status == highspy.HighsModelStatus.kOptimal or result.has_solution:
             return _Outcome.FEASIBLE, np.asarray(h.getSolution().col_value, dtype=float)
+        log.info("%s: HiGHS: %s", what, h.modelStatusToString(result.status))
         return _Outcome.UNKNOWN, None
 
 
 #: HiGHS options for the feasibility MILPs (zero objective: the first solution is optimal).
 _OPTIONS: dict[str, object] = {
-    "output_flag": False,
     "mip_feasibility_tolerance": 1e-9,
     "primal_feasibility_tolerance": 1e-9,
-    "threads": 1,
 }

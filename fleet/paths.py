@@ -35,6 +35,7 @@ from shapely.ops import nearest_points
 from fleet.errors import FleetError, NoPathError
 from fleet.floor.compiled import TOLERANCE as FLOOR_TOLERANCE
 from fleet.floor.compiled import Floor
+from fleet.highs import SolverError, new_highs, solve
 
 #: A segment overlaps a region when they share more than this length (m); less is a point touch.
 OVERLAP_TOL = 1e-9
@@ -860,10 +861,7 @@ class PathPlanner:
             row(-inf, 0.0, [(i, -1.0), (i + 1, 1.0), (M + i, -1.0)])
             row(0.0, inf, [(i, -1.0), (i + 1, 1.0), (M + i, 1.0)])
 
-        h = highspy.Highs()
-        h.setOptionValue("output_flag", False)
-        h.setOptionValue("primal_feasibility_tolerance", 1e-10)
-        h.setOptionValue("dual_feasibility_tolerance", 1e-10)
+        h = new_highs({"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10})
         h.addVars(nvar, np.zeros(nvar), np.concatenate([ub, np.full(n_tv, inf)]))
         cols = np.arange(nvar, dtype=np.int32)
         # Phase 1: cover as much of every piece as the steps allow (relative to its length, so
@@ -878,8 +876,8 @@ class PathPlanner:
             np.asarray(index, dtype=np.int32),
             np.asarray(value),
         )
-        h.run()
-        if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+        # A failed run raises SolverError (HiGHS's message): no timing can come from this LP.
+        if solve(h, "reference timing LP").status != highspy.HighsModelStatus.kOptimal:
             return None, [p.length for p in pieces]  # pragma: no cover - x = 0 is feasible
         x = np.asarray(h.getSolution().col_value[:M], dtype=float)
         covered = np.bincount(piece_of, weights=x, minlength=J)
@@ -893,8 +891,11 @@ class PathPlanner:
         if M <= CALM_MAX_STEPS:
             h.changeRowsBounds(J, np.arange(J, dtype=np.int32), target, target)
             h.changeColsCost(nvar, cols, np.concatenate([np.zeros(M), np.ones(n_tv)]))
-            h.run()
-            if h.getModelStatus() == highspy.HighsModelStatus.kOptimal:
+            try:
+                calm = solve(h, "reference calming LP").status == highspy.HighsModelStatus.kOptimal
+            except SolverError:  # logged; phase 1's timing stands
+                calm = False
+            if calm:
                 x = np.asarray(h.getSolution().col_value[:M], dtype=float)
         sigma = np.clip(x, 0.0, ub)
         # Cover each piece exactly (removes the solver's last rounding in the sums).

@@ -10,13 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from functools import cache
 
-import highspy
 import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from fleet.floor import Floor
+from fleet.highs import new_highs
 from fleet.paths import PathPlanner, Reference
 from fleet.plugins import SolverOutcome
 from fleet.safety import check_steps
@@ -192,7 +192,7 @@ def test_where_the_plans_differ_the_qp_has_the_lower_quadratic_cost() -> None:
     assert milp.outcome is SolverOutcome.OPTIMAL and milp.regions is not None
     assert len(set(milp.regions.tolist())) == 2
 
-    highs = highspy.Highs()
+    highs = new_highs()
     sol = qp(data, milp.regions, highs=highs)
 
     assert sol.outcome is SolverOutcome.OPTIMAL
@@ -255,7 +255,7 @@ def test_a_zone_limit_holds_a_faster_reference_back(sign: float) -> None:
 
 def test_an_impossible_region_sequence_is_infeasible_and_the_highs_object_stays_usable() -> None:
     s = setup()
-    highs = highspy.Highs()
+    highs = new_highs()
     start = on_reference(0)  # at rest at the depot, region 0
     slow = int(np.argmin(s.trip.v_max[:, 0]))
     far = np.full(N - 1, slow)  # the slow corner, 12 m away, for the next 3 s
@@ -278,7 +278,7 @@ def test_a_reused_highs_object_gets_the_time_limit_per_call() -> None:
     data = on_reference(40)
     milp = setup().milp[PAPER].solve(data)
     assert milp.regions is not None
-    highs = highspy.Highs()
+    highs = new_highs()
     outcomes = []
     while highs.getRunTime() < 0.15 and len(outcomes) < 2000:
         outcomes.append(qp(data, milp.regions, highs=highs, time_limit_s=0.05).outcome)
@@ -292,13 +292,13 @@ def test_a_solve_error_is_retried_once_with_the_same_plan(monkeypatch) -> None:
     assert milp.regions is not None
     first = qp(data, milp.regions)
     calls = []
-    real = refine._outcome
+    real = refine.run_outcome
 
-    def fail_first(highs):
+    def fail_first(highs, what):
         calls.append(1)
-        return SolverOutcome.ERROR if len(calls) == 1 else real(highs)
+        return SolverOutcome.ERROR if len(calls) == 1 else real(highs, what)
 
-    monkeypatch.setattr(refine, "_outcome", fail_first)
+    monkeypatch.setattr(refine, "run_outcome", fail_first)
     second = qp(data, milp.regions)
 
     assert len(calls) == 2
@@ -307,7 +307,7 @@ def test_a_solve_error_is_retried_once_with_the_same_plan(monkeypatch) -> None:
     np.testing.assert_allclose(second.p, first.p, rtol=0, atol=PLAN_TOL)
     np.testing.assert_allclose(second.u, first.u, rtol=0, atol=PLAN_TOL / DT**2)
 
-    monkeypatch.setattr(refine, "_outcome", lambda highs: SolverOutcome.ERROR)
+    monkeypatch.setattr(refine, "run_outcome", lambda highs, what: SolverOutcome.ERROR)
     assert qp(data, milp.regions).outcome is SolverOutcome.ERROR
 
 

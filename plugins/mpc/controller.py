@@ -17,6 +17,7 @@ import highspy
 import numpy as np
 
 from fleet.errors import NoPathError
+from fleet.highs import new_highs
 from fleet.paths import Reference
 from fleet.plugins import (
     CAP_LOOKAHEAD_S,
@@ -331,7 +332,7 @@ class MPCController(Controller):
             p_lo, p_hi = separation.bounds(milp.separation, data.p_lo, data.p_hi)
             data = StepData(p_lo, p_hi, data.v_lo, data.v_hi, data.z_ub, data.p_ref, data.v_ref)
         if self._qp_highs is None:
-            self._qp_highs = highspy.Highs()  # its own object: each refinement replaces its model
+            self._qp_highs = new_highs()  # its own object: each refinement replaces its model
         assert self._trip is not None
         qp = refine_quadratic(
             self._trip,

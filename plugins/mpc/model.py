@@ -33,6 +33,7 @@ same fleet diverged there; docs/mpc.md, "Reproducible solves").
 from __future__ import annotations
 
 import enum
+import logging
 import time
 from dataclasses import dataclass
 
@@ -41,17 +42,19 @@ import numpy as np
 import pyomo.environ as pyo
 from pyomo.contrib.solver.solvers.highs import Highs as PersistentHighs
 
+from fleet.highs import SolverError, configure, new_highs, solve, solver_log
 from fleet.plugins import SolverOutcome
 from fleet_plugins.mpc.separation import SLACK_COST, Separation
 from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
 
-__all__ = ["Interface", "TripModel", "StepData", "Solution", "HIGHS_OPTIONS"]
+__all__ = ["Interface", "TripModel", "StepData", "Solution", "HIGHS_OPTIONS", "run_outcome"]
+
+log = logging.getLogger("fleet.mpc")
 
 #: HiGHS options for these small MILPs (measured in docs/mpc-study.md): the sub-MIP
 #: heuristics and restarts cost up to a second on a 300-row MILP and never pay off here;
 #: the tight feasibility tolerance keeps Big-M leakage (M * 1e-6) far below the checker's 1e-6 m.
 HIGHS_OPTIONS: dict[str, object] = {
-    "output_flag": False,
     "mip_heuristic_run_rins": False,
     "mip_heuristic_run_rens": False,
     "mip_heuristic_run_root_reduced_cost": False,
@@ -98,6 +101,9 @@ class Solution:
     separation: np.ndarray | None = None
     #: Branch-and-bound nodes HiGHS explored (0: the MIP start or the root settled it).
     nodes: int = 0
+    #: The plan's cost (the model's objective), when usable: the comparable figure of two
+    #: solves, whose plans may differ where the cost has several optima.
+    objective: float | None = None
 
 
 class TripModel:
@@ -140,8 +146,7 @@ class TripModel:
         self.solver.set_instance(self.model)
         #: The persistent interface's HiGHS object (solved in only by the "pyomo" interface).
         self.highs: highspy.Highs = self.solver._solver_model
-        for key, value in self._options().items():
-            self.highs.setOptionValue(key, value)
+        configure(self.highs, self._options())
         self._index()
         # The model as built: each direct solve starts from a copy (its bounds are rewritten).
         self._lp = self.highs.getLp()
@@ -165,9 +170,7 @@ class TripModel:
 
     def _fresh_highs(self) -> highspy.Highs:
         """A new HiGHS object holding the trip's model as built (no history, no clock)."""
-        h = highspy.Highs()
-        for key, value in self._options().items():
-            h.setOptionValue(key, value)
+        h = new_highs(self._options())
         h.passModel(self._lp)
         return h
 
@@ -235,8 +238,8 @@ class TripModel:
             if warm is not None:
                 _warm_start(h, warm)
             t0 = time.perf_counter()
-            h.run()
-            return self._read(h, time.perf_counter() - t0)
+            outcome = run_outcome(h, "MPC step")
+            return self._read(h, outcome, time.perf_counter() - t0)
         h = self.highs
         h.clearSolver()
         added = self._append(h, separation) if extra and separation is not None else None
@@ -248,8 +251,10 @@ class TripModel:
             opts.raise_exception_on_nonoptimal_result = False
             opts.time_limit = self.time_limit_s
             opts.solver_options = {k: v for k, v in self._options().items() if k != "time_limit"}
+            solver_log(h).clear()
             self.solver.solve(self.model)
-            return self._read(h, h.getRunTime() - before)
+            outcome = outcome_of(h, h.getModelStatus(), "MPC step (pyomo)")
+            return self._read(h, outcome, h.getRunTime() - before)
         finally:
             if added is not None:
                 _remove(h, *added)
@@ -326,18 +331,7 @@ class TripModel:
             for j in range(S):
                 m.z_ub[k, j] = float(d.z_ub[k - 1, j])
 
-    def _read(self, h: highspy.Highs, solver_s: float) -> Solution:
-        status = h.getModelStatus()
-        has_solution = h.getInfo().primal_solution_status == 2
-        S = highspy.HighsModelStatus
-        if status == S.kOptimal:
-            outcome = SolverOutcome.OPTIMAL
-        elif status == S.kInfeasible:
-            outcome = SolverOutcome.INFEASIBLE
-        elif status in (S.kTimeLimit, S.kIterationLimit, S.kSolutionLimit, S.kInterrupt):
-            outcome = SolverOutcome.FEASIBLE if has_solution else SolverOutcome.NO_SOLUTION
-        else:
-            outcome = SolverOutcome.ERROR
+    def _read(self, h: highspy.Highs, outcome: SolverOutcome, solver_s: float) -> Solution:
         nodes = int(h.getInfo().mip_node_count)
         if not outcome.usable:
             return Solution(outcome, solver_s, nodes=nodes)
@@ -354,6 +348,7 @@ class TripModel:
             columns=col[: self._n_cols],
             separation=col[self._n_cols :].copy() if len(col) > self._n_cols else None,
             nodes=nodes,
+            objective=float(h.getInfo().objective_function_value),
         )
 
     def shifted_columns(self, sol: Solution, data: StepData) -> np.ndarray:
@@ -376,6 +371,40 @@ class TripModel:
         col[self._ev_cols] = np.abs(v[1:] - data.v_ref[1:]).ravel()
         col[self._eu_cols] = np.abs(u).ravel()
         return col
+
+
+def run_outcome(h: highspy.Highs, what: str) -> SolverOutcome:
+    """Run `h` and map how it ended to a `SolverOutcome`.
+
+    A failed run is ``ERROR``, logged with HiGHS's own message (`fleet.highs.solve`); every
+    other status that is not optimal is logged at info level by `outcome_of`.
+    """
+    try:
+        result = solve(h, what)
+    except SolverError:
+        return SolverOutcome.ERROR
+    return outcome_of(h, result.status, what)
+
+
+def outcome_of(h: highspy.Highs, status: highspy.HighsModelStatus, what: str) -> SolverOutcome:
+    """The `SolverOutcome` of a run of `h` that ended with model `status`.
+
+    "Unbounded or infeasible" (a presolve verdict) counts as infeasible: every plan's feasible
+    set is bounded, since each of its points lies in a region.
+    """
+    S = highspy.HighsModelStatus
+    if status == S.kOptimal:
+        return SolverOutcome.OPTIMAL
+    message = h.modelStatusToString(status)
+    if status in (S.kInfeasible, S.kUnboundedOrInfeasible):
+        log.info("%s: HiGHS: %s", what, message)
+        return SolverOutcome.INFEASIBLE
+    if status in (S.kTimeLimit, S.kIterationLimit, S.kSolutionLimit, S.kInterrupt):
+        log.info("%s: HiGHS: %s", what, message)
+        has_solution = h.getInfo().primal_solution_status == 2  # kSolutionStatusFeasible
+        return SolverOutcome.FEASIBLE if has_solution else SolverOutcome.NO_SOLUTION
+    log.warning("%s: HiGHS: %s: %s", what, message, solver_log(h).problems())
+    return SolverOutcome.ERROR
 
 
 def _warm_start(h: highspy.Highs, columns: np.ndarray) -> None:

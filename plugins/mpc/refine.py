@@ -37,8 +37,9 @@ from dataclasses import dataclass
 import highspy
 import numpy as np
 
+from fleet.highs import configure, new_highs
 from fleet.plugins import SolverOutcome
-from fleet_plugins.mpc.model import Solution, StepData
+from fleet_plugins.mpc.model import Solution, StepData, run_outcome
 from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
 
 __all__ = ["refine_quadratic", "quadratic_cost"]
@@ -87,7 +88,7 @@ def refine_quadratic(
         Wall-clock limit of HiGHS for this call (both tries together).
     highs:
         A HiGHS object of its own for these QPs, reused from call to call to save its
-        construction; its model and its options ``output_flag``, ``time_limit`` are replaced
+        construction (`fleet.highs.new_highs`); its model and its ``time_limit`` are replaced
         on every call. Never pass the trip model's ``TripModel.highs`` (that would replace the
         MILP). A new one is made when None.
 
@@ -126,8 +127,7 @@ def refine_quadratic(
             f"[{data.v_lo[0]}, {data.v_hi[0]}]: must be fixed to the measured state"
         )
     if highs is None:
-        highs = highspy.Highs()
-    highs.setOptionValue("output_flag", False)
+        highs = new_highs()
     problem = _Problem.of(trip, data, regions, N, float(dt), float(a_max), v_robot)
 
     solver_s = 0.0
@@ -137,12 +137,11 @@ def refine_quadratic(
         # The QP solver checks its time limit against the object's lifetime clock
         # (getRunTime(), which no clear() resets), not per run(): add the time used so far.
         left = max(float(time_limit_s) - solver_s, 0.0)
-        highs.setOptionValue("time_limit", highs.getRunTime() + left)
+        configure(highs, {"time_limit": highs.getRunTime() + left})
         qp.pass_to(highs)
         t0 = time.perf_counter()
-        highs.run()
+        outcome = run_outcome(highs, "MPC quadratic refinement")
         solver_s += time.perf_counter() - t0
-        outcome = _outcome(highs)
         if outcome is not SolverOutcome.ERROR or solver_s >= time_limit_s:
             break
     if not outcome.usable:
@@ -384,19 +383,3 @@ def _rows_to_bounds(
     holds = (lo <= _CONSTANT_TOL) & (hi >= -_CONSTANT_TOL)
     keep = (nnz > 1) | ((nnz == 0) & ~holds)
     return A[keep], lo[keep], hi[keep], col_lo, col_hi
-
-
-def _outcome(highs: highspy.Highs) -> SolverOutcome:
-    """The QP's outcome, as `model.TripModel` maps a MILP's."""
-    status = highs.getModelStatus()
-    S = highspy.HighsModelStatus
-    if status == S.kOptimal:
-        return SolverOutcome.OPTIMAL
-    # The feasible set is bounded (every point is in a region), so "unbounded or infeasible"
-    # (from presolve) means infeasible.
-    if status in (S.kInfeasible, S.kUnboundedOrInfeasible):
-        return SolverOutcome.INFEASIBLE
-    if status in (S.kTimeLimit, S.kIterationLimit, S.kSolutionLimit, S.kInterrupt):
-        has_solution = highs.getInfo().primal_solution_status == 2
-        return SolverOutcome.FEASIBLE if has_solution else SolverOutcome.NO_SOLUTION
-    return SolverOutcome.ERROR
