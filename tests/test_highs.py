@@ -189,3 +189,17 @@ def test_the_bound_is_tight_after_an_mpc_run_in_the_same_process():
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("tight"), done.stdout + done.stderr
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_fleet_run_prints_no_solver_banner(tmp_path, workers):
+    """An MPC run, in this process and in an agent process: stdout is the CLI's alone."""
+    done = subprocess.run(
+        [sys.executable, "-m", "fleet", "run", "scenarios/paper_case3_s1.toml", "--quiet",
+         "--no-figures", "--duration", "20", "--workers", str(workers), "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=300, cwd=ROOT,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "HiGHS" not in done.stdout + done.stderr
+    summary = (tmp_path / "summary.json").read_text()
+    assert '"steps": ' in summary  # the MPC did solve
