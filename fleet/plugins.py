@@ -23,6 +23,7 @@ import enum
 import importlib
 import importlib.metadata
 import sys
+import threading
 import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
@@ -400,6 +401,8 @@ _KINDS: dict[str, tuple[str, type, str]] = {
 
 # Per-process cache of `discover()`: kind -> plugins in entry-point order. None until first use.
 _CACHE: dict[str, tuple[PluginInfo, ...]] | None = None
+#: Held while the entry points are read (reentrant: a plugin's import may ask for plugins).
+_CACHE_LOCK = threading.RLock()
 
 
 class PluginWarning(UserWarning):
@@ -481,16 +484,24 @@ def discover(kind: str | None = None, *, refresh: bool = False) -> list[PluginIn
     global _CACHE
     if kind is not None and kind not in _KINDS:
         raise ValueError(f"plugin kind {kind!r} is unknown; allowed: {', '.join(_KINDS)} or None")
-    if _CACHE is None or refresh:
-        # A plugin installed since the last read may live in a directory whose listing the
-        # import system has cached.
-        importlib.invalidate_caches()
-        _CACHE = {}
-        for k in _KINDS:  # a plain loop so the warnings' stacklevel points at our caller
-            _CACHE[k] = _scan(k)
+    cache = _CACHE
+    if cache is None or refresh:
+        with _CACHE_LOCK:
+            # Threads (a Dask worker's, say) may all find no cache: one reads, the others
+            # wait and take its result. The registry is published whole, in one assignment,
+            # so no thread ever sees one partly filled.
+            cache = _CACHE
+            if cache is None or refresh:
+                # A plugin installed since the last read may live in a directory whose
+                # listing the import system has cached.
+                importlib.invalidate_caches()
+                fresh = {}
+                for k in _KINDS:  # a plain loop so the warnings' stacklevel points at our caller
+                    fresh[k] = _scan(k)
+                _CACHE = cache = fresh
     kinds = [kind] if kind is not None else sorted(_KINDS)
     # sorted() is stable, so among equal names the winner (found first) stays first.
-    return [info for k in kinds for info in sorted(_CACHE[k], key=lambda i: i.name)]
+    return [info for k in kinds for info in sorted(cache[k], key=lambda i: i.name)]
 
 
 def load_controller(name: str, options: Mapping[str, Any] | None = None) -> Controller:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import sys
 import textwrap
+import threading
 import warnings
 from collections import namedtuple
 from dataclasses import replace
@@ -529,3 +530,36 @@ def test_fleet_plugins_command_lists_broken_plugins_with_their_error(
     assert "acme-fleet 2.3" in out and "acme_dispatch" in out
     assert "broken: cannot import 'acme_no_such_module:Ghost'" in out  # listed with its error
     assert "warning:" in err and "'ghost'" in err
+
+
+# --- discovery from many threads ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("refresh", [False, True], ids=["first-read", "refresh"])
+def test_threads_reading_the_registry_at_once_all_see_all_of_it(refresh: bool) -> None:
+    # A Dask worker's threads start cells at the same moment, each loading its plugins: none
+    # may see a registry that another thread is still filling (it used to raise KeyError).
+    threads = 16
+    barrier = threading.Barrier(threads)
+    failures: list[BaseException] = []
+    seen: list[set[str]] = []
+
+    def load() -> None:
+        try:
+            barrier.wait()
+            found = discover(refresh=refresh)
+            load_controller("follower")
+            load_dispatcher("greedy")
+            seen.append({f"{i.kind}:{i.name}" for i in found if i.ok})
+        except BaseException as exc:  # noqa: BLE001 - any exception is the finding
+            failures.append(exc)
+
+    workers = [threading.Thread(target=load) for _ in range(threads)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join(timeout=60)
+    assert failures == []
+    assert len(seen) == threads
+    assert all(s == seen[0] for s in seen)
+    assert {"controller:follower", "controller:mpc", "dispatcher:greedy"} <= seen[0]

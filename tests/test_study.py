@@ -378,3 +378,28 @@ def test_a_worker_killed_mid_sweep_costs_no_cell(tmp_path):
     assert killed
     assert (result.ok, result.failed) == (4, 0)
     assert [r["status"] for r in read_rows(result.results_path)] == ["ok"] * 4
+
+
+def test_a_dask_worker_with_two_threads_finishes_every_cell(tmp_path):
+    # Dask's default workers run cells in threads: each cell loads plugins (a registry read
+    # from several threads at once; it used to fail cells with KeyError) and solves with
+    # HiGHS, whose scheduler is one per process. Same digests as on a process pool.
+    distributed = pytest.importorskip("distributed")
+    body = TINY.replace("seeds = [1, 2]", "seeds = [1]") + 'controller = ["follower", "mpc"]\n'
+    study = load_study(write_study(tmp_path, body))
+    pool = run_study(study, tmp_path / "pool", workers=2)
+    with (
+        distributed.LocalCluster(
+            n_workers=1, processes=True, threads_per_worker=2, dashboard_address=None
+        ) as cluster,
+        dask_executor(cluster.scheduler_address) as executor,
+    ):
+        result = run_study(study, tmp_path / "dask", executor=executor)
+    assert (result.ok, result.failed, result.skipped) == (4, 0, 0)
+    digests = {r["cell"]: r["kpis"]["digest"] for r in pool.records}
+    solves = 0
+    for record in result.records:
+        assert record["kpis"]["digest"] == digests[record["cell"]]
+        summary = json.loads((result.out_dir / record["run_dir"] / "summary.json").read_text())
+        solves += summary.get("solver", {}).get("steps", 0)
+    assert solves > 0  # the MPC cells did solve in the worker's threads
