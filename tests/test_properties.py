@@ -144,11 +144,16 @@ def test_follower_never_breaks_a_print_cap(floor, tasks, caps, moving, controlle
         assume(False)
     note(f"tasks {tasks}, caps {caps}")
     second = ScriptedJob(trip.travel_time + 3.0 if moving else 0.0, "a", tasks=tasks)
+    # Long enough for both jobs whatever was drawn: the first trip and the second's release,
+    # the trip home under caps (a 0.1 m/s cap makes it 10x slower), and the whole print, on
+    # which a robot that arrives first waits. A print longer than the trip used to outlast
+    # the run, so the second job could not be delivered.
+    print_s = tasks[-1].end_s - tasks[0].start_s
     scenario = Scenario(
         name="property-caps",
         source="<property test>",
         map=Path("<random floor>"),
-        duration_s=60.0 + 12.0 * trip.travel_time,  # a 0.1 m/s cap makes the trip 10x slower
+        duration_s=60.0 + 14.0 * trip.travel_time + print_s,
         robots=(RobotsConfig(count=1, start=("a",), period_s=0.25, radius=0.3),),
         jobs=JobsConfig(mode="scripted", scripted=(ScriptedJob(0.0, "b"), second)),
         print_caps=caps,
