@@ -1,16 +1,23 @@
 """Engine throughput: robot-steps per second with the baseline follower, in one process.
 
-Runs the shop floor with 10, 100 and 1000 robots and prints, per fleet size and load, the set-up
-time (World construction: map, plugins, bus), the run's wall time (simulation plus the summary's
-safety check) and robot-steps per wall second, medians of --repeats runs. Two loads:
+Runs the shop floor with 10, 100 and 1000 robots and prints, per fleet size, load and sensing,
+the set-up time (World construction: map, plugins, bus), the run's wall time (simulation plus
+the summary's safety check) and robot-steps per wall second, medians of --repeats runs. Two
+loads:
 
 - ``busy``: Poisson jobs, one per robot every two minutes on average, so the figure includes
   path planning (A* and the reference LP) for every trip;
 - ``idle``: no jobs, robots hold at home: the cost of the engine, the bus and the controller alone.
 
+Two sensing settings, both measured in the same run: the default scenario's (it senses:
+``sensing_radius_m = 6``, so each observation lists the robots within 6 m with their plans, and
+the follower yields and brakes for them), and ``off`` (0: robots see no one, as before sensing
+existed). ``off/on`` is the ratio of their medians.
+
 Nothing here is asserted: the figures go in notes and the README.
 
     python scripts/bench_engine.py [--sizes 10 100 1000] [--steps 100000] [--repeats 3]
+                                   [--sensing default off]
 """
 
 from __future__ import annotations
@@ -30,14 +37,19 @@ def main() -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[10, 100, 1000])
     ap.add_argument("--steps", type=int, default=100_000, help="robot-steps per run (about)")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument(
+        "--sensing", nargs="+", choices=["default", "off"], default=["default", "off"],
+        help="the default scenario's sensing radius, none, or both (the default)",
+    )  # fmt: skip
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "default.toml")
     floor = load_floor(base.map)
     print(f"map {floor.name}: {len(floor.regions)} regions; controller follower, dispatcher greedy")
+    radius = {"default": base.sensing_radius_m, "off": 0.0}
     print(
-        f"{'robots':>7} {'load':>5} {'sim s':>7} {'steps':>9} {'setup s':>8} {'run s':>8} "
-        f"{'steps/s':>10}"
+        f"{'robots':>7} {'load':>5} {'sensing':>7} {'sim s':>7} {'steps':>9} {'setup s':>8} "
+        f"{'run s':>8} {'steps/s':>10} {'off/on':>7}"
     )
     never = JobsConfig(mode="scripted", scripted=(ScriptedJob(1e12, floor.spec.stations[-1].name),))
     for n, load in [(n, load) for n in args.sizes for load in ("busy", "idle")]:
@@ -47,21 +59,31 @@ def main() -> None:
         busy = replace(base.jobs, rate_per_h=30.0 * n, parts=())
         jobs = busy if load == "busy" else never
         sc = replace(base.override(robots=n, duration=duration), jobs=jobs, parts={}, print_caps={})
-        setups, runs, rates = [], [], []
-        for _ in range(args.repeats):
-            t0 = time.perf_counter()
-            world = World(sc, floor)
-            t1 = time.perf_counter()
-            result = world.run()
-            t2 = time.perf_counter()
-            steps = result.summary["engine"]["robot_steps"]
-            setups.append(t1 - t0)
-            runs.append(t2 - t1)
-            rates.append(steps / (t2 - t1))
-        print(
-            f"{n:>7} {load:>5} {duration:>7.0f} {steps:>9} {statistics.median(setups):>8.2f} "
-            f"{statistics.median(runs):>8.2f} {statistics.median(rates):>10.0f}"
-        )
+        rate_of: dict[str, float] = {}
+        for sensing in args.sensing:
+            sensed = replace(sc, sensing_radius_m=radius[sensing])
+            setups, runs, rates = [], [], []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                world = World(sensed, floor)
+                t1 = time.perf_counter()
+                result = world.run()
+                t2 = time.perf_counter()
+                steps = result.summary["engine"]["robot_steps"]
+                setups.append(t1 - t0)
+                runs.append(t2 - t1)
+                rates.append(steps / (t2 - t1))
+            rate_of[sensing] = statistics.median(rates)
+            label = f"{radius[sensing]:g} m" if radius[sensing] > 0 else "off"
+            ratio = (
+                f"{rate_of['off'] / rate_of['default']:>7.1f}" if len(rate_of) == 2 else f"{'':>7}"
+            )
+            print(
+                f"{n:>7} {load:>5} {label:>7} {duration:>7.0f} {steps:>9} "
+                f"{statistics.median(setups):>8.2f} {statistics.median(runs):>8.2f} "
+                f"{rate_of[sensing]:>10.0f} {ratio}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":
