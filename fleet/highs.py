@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import collections
 import logging
-import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -37,7 +36,6 @@ __all__ = [
     "configure",
     "solve",
     "solver_log",
-    "version",
 ]
 
 log = logging.getLogger("fleet.highs")
@@ -176,14 +174,6 @@ _FAILED = frozenset(
 )
 
 
-def version() -> str:
-    """The HiGHS library's version, e.g. ``1.16.0``."""
-    return highspy.Highs().version()
-
-
-_banner_lock = threading.Lock()
-
-
 def _silence_banner() -> None:
     """Have HiGHS write its once-per-process banner to nowhere (see the module).
 
@@ -191,10 +181,9 @@ def _silence_banner() -> None:
     set) with its console log off writes the banner into the void and marks it written.
     """
     raw = getattr(getattr(highspy, "_core", None), "_Highs", None)
-    with _banner_lock:
-        h = raw() if raw is not None else highspy.Highs()
-        h.setOptionValue("log_to_console", False)
-        h.addVars(1, [0.0], [1.0])
+    h = raw() if raw is not None else highspy.Highs()
+    h.setOptionValue("log_to_console", False)
+    h.addVars(1, [0.0], [1.0])
 
 
 _silence_banner()
