@@ -247,6 +247,17 @@ def test_a_failing_cell_is_recorded_and_the_others_run(tmp_path):
     assert error_txt.stat().st_mtime_ns != stamp
 
 
+def run_on_dask(distributed, study, out: Path, *, processes: bool, threads: int):
+    """`study` on a local Dask cluster of one worker with `threads` threads."""
+    with (
+        distributed.LocalCluster(
+            n_workers=1, processes=processes, threads_per_worker=threads, dashboard_address=None
+        ) as cluster,
+        dask_executor(cluster.scheduler_address) as executor,
+    ):
+        return run_study(study, out, executor=executor)
+
+
 def test_the_dask_path_gives_the_same_results_as_the_process_pool(tiny, tmp_path):
     distributed = pytest.importorskip("distributed")
     study, pool_result, _ = tiny
@@ -257,13 +268,7 @@ def test_the_dask_path_gives_the_same_results_as_the_process_pool(tiny, tmp_path
     by_id = {r["cell"]: r for r in pool_result.records}
     assert {c.id for c in subset.cells} <= set(by_id)
 
-    with (
-        distributed.LocalCluster(
-            n_workers=1, processes=False, threads_per_worker=1, dashboard_address=None
-        ) as cluster,
-        dask_executor(cluster.scheduler_address) as executor,
-    ):
-        result = run_study(subset, tmp_path / "out", executor=executor)
+    result = run_on_dask(distributed, subset, tmp_path / "out", processes=False, threads=1)
     assert (result.ok, result.failed, result.skipped) == (2, 0, 0)
     for record in result.records:
         assert record["kpis"]["digest"] == by_id[record["cell"]]["kpis"]["digest"]
@@ -388,13 +393,7 @@ def test_a_dask_worker_with_two_threads_finishes_every_cell(tmp_path):
     body = TINY.replace("seeds = [1, 2]", "seeds = [1]") + 'controller = ["follower", "mpc"]\n'
     study = load_study(write_study(tmp_path, body))
     pool = run_study(study, tmp_path / "pool", workers=2)
-    with (
-        distributed.LocalCluster(
-            n_workers=1, processes=True, threads_per_worker=2, dashboard_address=None
-        ) as cluster,
-        dask_executor(cluster.scheduler_address) as executor,
-    ):
-        result = run_study(study, tmp_path / "dask", executor=executor)
+    result = run_on_dask(distributed, study, tmp_path / "dask", processes=True, threads=2)
     assert (result.ok, result.failed, result.skipped) == (4, 0, 0)
     digests = {r["cell"]: r["kpis"]["digest"] for r in pool.records}
     solves = 0
