@@ -10,10 +10,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from fleet.errors import NoPathError
-from fleet.plugins import Announcement, Observation
 
 if TYPE_CHECKING:
+    # Names only: the contracts (fleet.plugins) call this module for their default bid, so
+    # importing them at run time would close an import circle.
     from fleet.paths import PathPlanner
+    from fleet.plugins import Announcement, Observation
 
 __all__ = ["estimate_completion"]
 

@@ -30,6 +30,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from fleet.auction import estimate_completion
 from fleet.errors import PluginError
 
 if TYPE_CHECKING:
@@ -267,8 +268,6 @@ class Controller(ABC):
         The default is `fleet.auction.estimate_completion` with the context's path planner
         (finish the current job, then drive to the job's station, waiting for its print).
         """
-        from fleet.auction import estimate_completion  # the auction module imports this one
-
         return estimate_completion(self.context.planner, obs, job)
 
 
