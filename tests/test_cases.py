@@ -1,0 +1,89 @@
+"""The minimal cases found from outside (tests/cases/, copied from ../shared/cases/): each
+expects what tests/cases/README.md says it should show.
+
+Those main does not meet yet are marked xfail with ``strict``: they fail the suite as soon as a
+change makes them pass, so the mark is taken off in the change that fixes them (the safety and
+liveness issue).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from fleet.engine import World
+from fleet.errors import FleetError, ScenarioError
+from fleet.floor import load_floor
+from fleet.paths import PathPlanner
+from fleet.scenario import load_scenario
+
+CASES = Path(__file__).resolve().parent / "cases"
+LIVENESS = "issue 16: liveness (an idle or parked robot blocks a trip for good)"
+
+
+def summary_of(case: str, file: str = "scen.toml", **override: Any) -> dict[str, Any]:
+    scenario = load_scenario(CASES / case / file)
+    if override:
+        scenario = scenario.override(**override)
+    return World(scenario).run().summary
+
+
+@pytest.mark.parametrize(
+    "controller",
+    [pytest.param("follower", marks=pytest.mark.xfail(strict=True, reason=LIVENESS)), "mpc"],
+)
+def test_an_idle_robot_parked_on_a_path_never_blocks_it_for_good(controller: str) -> None:
+    s = summary_of("parked_on_path", controller=controller)
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 2
+    assert s["violations"]["collision"] == 0
+
+
+@pytest.mark.xfail(strict=True, reason=LIVENESS)
+def test_a_trip_via_a_station_where_a_robot_is_parked_is_delivered() -> None:
+    s = summary_of("via_parked_robot")
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 1
+
+
+@pytest.mark.xfail(strict=True, reason="issue 16: a job handed back waits while robots idle")
+def test_jobs_to_one_station_are_all_delivered() -> None:
+    s = summary_of("same_station")
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 3
+
+
+@pytest.mark.xfail(
+    strict=True, raises=FleetError, reason="issue 16: the reference fails its own safety check"
+)
+@pytest.mark.parametrize(("dt", "a_max"), [(0.5, 0.5), (1.0, 0.5), (0.25, 1.0), (0.25, 2.0)])
+def test_the_reference_is_valid_on_a_floor_the_loader_accepts(dt: float, a_max: float) -> None:
+    floor = load_floor(CASES / "reference_selfcheck" / "floor.toml")
+    start, goal = floor.station("st3"), floor.station("st0")
+    ref = PathPlanner(floor, 1.0, a_max).reference((start.x, start.y), (goal.x, goal.y), dt)
+    assert ref.steps > 0
+
+
+@pytest.mark.xfail(strict=True, reason="issue 16: the reference fails its own safety check")
+def test_a_robot_that_can_never_move_is_not_a_quiet_run() -> None:
+    # Today the robot's every command is an error and the run ends with one warning.
+    s = summary_of("reference_selfcheck")
+    assert s["jobs"]["completed"] == 1
+
+
+@pytest.mark.parametrize(
+    ("file", "seed"),
+    [
+        pytest.param(f, seed, marks=[] if f == "p025" else pytest.mark.xfail(
+            strict=True, reason="issue 16: the follower collides at coarse periods"))
+        for f, seeds in (("p1", (2, 4, 5)), ("p05", (4, 5)), ("p025", (4, 5)))
+        for seed in seeds
+    ],
+)  # fmt: skip
+def test_the_follower_never_collides_at_a_period_scenarios_accept(file: str, seed: int) -> None:
+    try:
+        s = summary_of("follower_coarse_period", f"{file}.toml", seed=seed)
+    except ScenarioError as exc:  # refusing a period it cannot keep safe is allowed
+        assert exc.field.endswith("period_s"), exc
+        return
+    assert s["violations"]["collision"] == 0
+    assert s["jobs"]["completed"] >= 1
