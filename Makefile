@@ -53,15 +53,17 @@ $(UV):
 	$(PYTHON) -m venv $(TOOLS)
 	$(TOOLS)/bin/python -m pip --disable-pip-version-check install --quiet uv==$(UV_VERSION)
 
+# One resolution for every platform and Python >= 3.11, from pyproject.toml and LOCK_INPUTS.
+COMPILE = printf '%s\n' $(foreach r,$(LOCK_INPUTS),'$(r)') | $(UV) pip compile pyproject.toml - \
+	--extra dev --universal --python-version 3.11 --generate-hashes --quiet -o $(LOCK)
+
 # Re-resolve after pyproject.toml changed, keeping every locked version that still fits.
 lock: $(UV)
-	printf '%s\n' $(foreach r,$(LOCK_INPUTS),'$(r)') | $(UV) pip compile pyproject.toml - --extra dev \
-		--universal --python-version 3.11 --generate-hashes --quiet -o $(LOCK)
+	$(COMPILE)
 
 # Every package to its newest release that pyproject and LOCK_INPUTS allow; then `make test`.
 upgrade: $(UV)
-	printf '%s\n' $(foreach r,$(LOCK_INPUTS),'$(r)') | $(UV) pip compile pyproject.toml - --extra dev \
-		--universal --python-version 3.11 --generate-hashes --quiet --upgrade -o $(LOCK)
+	$(COMPILE) --upgrade
 
 # The replay page is tested in a real headless Chromium (Debian's package): install it when it
 # is missing and apt-get can (as root, or through sudo without a password prompt). If it cannot,
