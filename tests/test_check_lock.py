@@ -1,14 +1,12 @@
 """scripts/check_lock.py: the lock's pins for this platform, and every way an environment can
 differ from them."""
 
-import importlib.util
 import sys
 
 from fleet.scenario import REPO_ROOT
+from tests.scripts import load_script
 
-spec = importlib.util.spec_from_file_location("check_lock", REPO_ROOT / "scripts" / "check_lock.py")
-check_lock = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(check_lock)
+check_lock = load_script("check_lock")
 
 LOCK = """\
 # header

@@ -4,7 +4,7 @@ The digest is a sha256 over every robot's exact samples, so any change in behavi
 small, shows here. A change that alters behaviour on purpose records the new digests in a commit
 of its own that says why:
 
-    python tests/test_golden.py --record
+    python -m tests.test_golden --record
 
 Digests depend on the exact versions of numpy and HiGHS, so they are compared only in an
 environment that holds exactly `requirements.lock` (`make test`, CI); elsewhere (`make
@@ -13,7 +13,6 @@ test-latest`) these tests skip, naming the differences.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -23,6 +22,7 @@ import pytest
 
 from fleet.engine import World
 from fleet.scenario import REPO_ROOT, load_scenario
+from tests.scripts import load_script
 
 GOLDEN = Path(__file__).with_name("golden_digests.json")
 
@@ -53,12 +53,7 @@ def run_case(name: str) -> dict[str, Any]:
 
 
 def lock_differences() -> list[str]:
-    spec = importlib.util.spec_from_file_location(
-        "check_lock", REPO_ROOT / "scripts" / "check_lock.py"
-    )
-    assert spec is not None and spec.loader is not None
-    check_lock = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(check_lock)
+    check_lock = load_script("check_lock")
     pins = check_lock.locked(REPO_ROOT / "requirements.lock")
     return check_lock.differences(pins, check_lock.installed())
 
@@ -89,7 +84,7 @@ def test_every_case_is_recorded() -> None:
 
 if __name__ == "__main__":
     if sys.argv[1:] != ["--record"]:
-        raise SystemExit("usage: python tests/test_golden.py --record")
+        raise SystemExit("usage: python -m tests.test_golden --record")
     recorded = {}
     for case in sorted(CASES):
         result = run_case(case)

@@ -1,0 +1,15 @@
+"""Load a script of scripts/ as a module, so tests call its functions (scripts/ is no package)."""
+
+import importlib.util
+from types import ModuleType
+
+from fleet.scenario import REPO_ROOT
+
+
+def load_script(name: str) -> ModuleType:
+    """``scripts/<name>.py`` as a module named `name`."""
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "scripts" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
