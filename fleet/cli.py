@@ -316,7 +316,7 @@ def _simulate(args: argparse.Namespace, console: Console, scenario, make_world) 
             result = world.run(lambda now: bar.update(task, completed=now, now=now))
     world.write(out)
     if args.figures:
-        from fleet.plots import save_run_figures
+        from fleet.view.figures import save_run_figures
 
         save_run_figures(out, world.floor)
     if not args.quiet:
@@ -336,7 +336,7 @@ def _simulate(args: argparse.Namespace, console: Console, scenario, make_world) 
 def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
     from contextlib import nullcontext
 
-    from fleet.study import dask_executor, load_study, run_study
+    from fleet.study.sweep import dask_executor, load_study, run_study
 
     study = load_study(args.study)
     out = args.out or Path("runs") / study.name
@@ -399,7 +399,7 @@ def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_report(args: argparse.Namespace, console: Console) -> int:
-    from fleet.report import write_report
+    from fleet.study.report import write_report
 
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise FleetError(f"--out {args.out}: is a file; the report needs a directory")
@@ -410,7 +410,7 @@ def _cmd_report(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_plot(args: argparse.Namespace, console: Console) -> int:
-    from fleet.plots import save_run_figures
+    from fleet.view.figures import save_run_figures
 
     for path in save_run_figures(args.run_dir):
         console.print(f"wrote {escape(str(path))}", soft_wrap=True)
@@ -418,7 +418,7 @@ def _cmd_plot(args: argparse.Namespace, console: Console) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace, console: Console) -> int:
-    from fleet.replay import REPLAY_HTML, write_replay
+    from fleet.view.replay import REPLAY_HTML, write_replay
 
     out = args.out
     if out is not None and out.is_dir():
@@ -564,7 +564,7 @@ def _cmd_gcode(args: argparse.Namespace, console: Console) -> int:
     import json
 
     from fleet.errors import GcodeError
-    from fleet.gcode import analyze
+    from fleet.printing.gcode import analyze
 
     classification: dict[str, str] = {}
     for item in args.map:

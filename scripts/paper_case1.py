@@ -1,9 +1,9 @@
 """Case studies 1 and 2 of the paper, refitted: the QSP from Table 1, the vibration from Table 2.
 
-Fits the shipped calibration (`fleet.quality.default_model`), prints the per-axis lines, the
-speed cap per task at the tolerances, the tolerance the paper's caps imply, the vibration fit
-and what the model predicts for every Table 2 run beside what the paper measured; writes
-``qsp.png`` (data, fitted lines, tolerance band), ``qsp_fit.csv`` and ``table2_fit.csv`` to --out.
+Fits the shipped calibration (`fleet.printing.quality.default_model`), prints the per-axis lines,
+the speed cap per task at the tolerances, the tolerance the paper's caps imply, the vibration fit
+and what the model predicts for every Table 2 run beside what the paper measured; writes ``qsp.png``
+(data, fitted lines, tolerance band), ``qsp_fit.csv`` and ``table2_fit.csv`` to --out.
 
     python scripts/paper_case1.py [--out runs/paper_case1] [--tolerance 0.05]
 """
@@ -19,9 +19,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from fleet.plots import KIND_COLOURS
 from fleet.printing import PAPER_CAPS
-from fleet.quality import ALL, DEFAULT_TOLERANCE_MM, check_runs, data_file, default_model
+from fleet.printing.quality import ALL, DEFAULT_TOLERANCE_MM, check_runs, data_file, default_model
+from fleet.view.figures import KIND_COLOURS
 
 _AXIS_COLOURS = {"height": "#1f77b4", "width": "#ff7f0e", "depth": "#2ca02c"}
 _KINDS = ("contour", "infill", "support")

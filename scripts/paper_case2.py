@@ -22,7 +22,7 @@ from fleet.engine import World
 from fleet.scenario import REPO_ROOT, load_scenario
 
 RUNS = ("v02", "v04", "v06", "v08", "v10", "varying")
-#: The paper's run names in fleet/data/table2_runs.csv, by our scenario tag.
+#: The paper's run names in fleet/printing/data/table2_runs.csv, by our scenario tag.
 PAPER_RUN = {"v02": "0.2", "v04": "0.4", "v06": "0.6", "v08": "0.8", "v10": "1.0"}
 #: Our outcomes in the paper's words.
 PAPER_WORD = {"good": "pass", "defective": "defect", "failed": "fail"}
@@ -30,7 +30,7 @@ PAPER_WORD = {"good": "pass", "defective": "defect", "failed": "fail"}
 
 def paper_table() -> dict[str, dict[str, str]]:
     """The paper's Table 2 per run: distance_m, turn_rad, outcome, worst |error| (mm)."""
-    data = files("fleet") / "data"
+    data = files("fleet.printing") / "data"
     with (data / "table2_runs.csv").open(encoding="utf-8") as fh:
         runs = {row["run"]: row for row in csv.DictReader(fh)}
     with (data / "table2.csv").open(encoding="utf-8") as fh:

@@ -3,7 +3,7 @@
 Runs `scenarios/paper_case3_s1.toml` (spatial speed limits) and `_s2.toml` (plus print-task
 caps) through the engine with the MPC, writes each run directory (with trajectory.png,
 speed.png and gantt.png) under --out, computes each trip's minimum-time lower bound offline
-(`fleet.lowerbound`, a MILP over the whole trip), and prints arrival, the paper's arrival, the
+(`fleet.study.lowerbound`, a MILP over the whole trip), and prints arrival, the paper's arrival, the
 bound, arrival / bound, violations and solver figures.
 
     python scripts/paper_case3.py [--out runs]
@@ -15,9 +15,9 @@ import argparse
 from pathlib import Path
 
 from fleet.engine import World
-from fleet.lowerbound import min_time_lower_bound
-from fleet.plots import save_run_figures
 from fleet.scenario import REPO_ROOT, load_scenario
+from fleet.study.lowerbound import min_time_lower_bound
+from fleet.view.figures import save_run_figures
 
 #: The paper's arrival times (s), goal-point tracking with Gurobi's MIQP.
 PAPER_ARRIVAL_S = {"paper_case3_s1": 160.0, "paper_case3_s2": 223.0}

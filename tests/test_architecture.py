@@ -24,31 +24,25 @@ ROOT = Path(__file__).resolve().parent.parent
 #: fleet/; the longest matching name counts. Keep in step with docs/architecture.md.
 MAY_IMPORT: dict[str, set[str]] = {
     "fleet.errors": set(),
-    "fleet.printing": set(),
-    "fleet.robot": set(),
     "fleet.highs": {"fleet.errors"},
     "fleet.floor": {"fleet.errors"},
-    "fleet.gcode": {"fleet.errors", "fleet.printing"},
-    "fleet.quality": {"fleet.errors", "fleet.floor", "fleet.printing"},
+    "fleet.printing": {"fleet.errors", "fleet.floor"},
     "fleet.paths": {"fleet.errors", "fleet.floor", "fleet.highs"},
-    "fleet.safety": {"fleet.floor", "fleet.printing"},
-    "fleet.lowerbound": {"fleet.errors", "fleet.floor", "fleet.highs", "fleet.printing"},
-    "fleet.scenario": {"fleet.errors", "fleet.printing", "fleet.quality"},
-    "fleet.auction": {"fleet.errors"},
-    "fleet.plugins": {"fleet.errors", "fleet.auction"},
-    "fleet.bus": {"fleet.errors", "fleet.plugins", "fleet.robot"},
-    "fleet.testing": {
-        "fleet.errors", "fleet.floor", "fleet.paths", "fleet.plugins", "fleet.robot", "fleet.bus",
+    "fleet.scenario": {"fleet.errors", "fleet.printing"},
+    "fleet.plugins": {"fleet.errors"},
+    "fleet.bus": {"fleet.errors", "fleet.plugins"},
+    "fleet.plugins.testing": {
+        "fleet.errors", "fleet.floor", "fleet.paths", "fleet.plugins", "fleet.bus",
     },
     "fleet.engine": {
-        "fleet.errors", "fleet.floor", "fleet.paths", "fleet.printing", "fleet.gcode",
-        "fleet.quality", "fleet.robot", "fleet.safety", "fleet.scenario", "fleet.plugins",
-        "fleet.bus",
+        "fleet.errors", "fleet.floor", "fleet.paths", "fleet.printing", "fleet.scenario",
+        "fleet.plugins", "fleet.bus",
     },
-    "fleet.plots": {"fleet.errors", "fleet.floor"},
-    "fleet.replay": {"fleet.floor", "fleet.plots"},
-    "fleet.report": {"fleet.errors", "fleet.plots"},
-    "fleet.study": {"fleet.errors", "fleet.scenario", "fleet.plugins", "fleet.engine"},
+    "fleet.view": {"fleet.errors", "fleet.floor"},
+    "fleet.study": {
+        "fleet.errors", "fleet.floor", "fleet.highs", "fleet.printing", "fleet.scenario",
+        "fleet.plugins", "fleet.engine", "fleet.view",
+    },
 }  # fmt: skip
 
 #: Rooms that may import any room: the command line and `python -m fleet`.
@@ -156,3 +150,12 @@ def test_the_rules_are_themselves_one_way():
 def test_every_package_says_its_job(package):
     docstring = ast.get_docstring(ast.parse(MODULES[package].read_text(encoding="utf-8")))
     assert docstring and len(docstring.split()) >= 5, package
+
+
+def test_the_core_keeps_at_most_three_modules_beside_its_rooms():
+    loose = sorted(
+        p.name
+        for p in (ROOT / "fleet").glob("*.py")
+        if p.name not in {"__init__.py", "__main__.py"}
+    )
+    assert loose == ["cli.py", "errors.py", "highs.py"]

@@ -49,7 +49,7 @@ from fleet.plugins import (
     SolveReport,
     SolverOutcome,
 )
-from fleet.robot import brake_input
+from fleet.plugins.robot import brake_input
 
 # --- test plugins and helpers --------------------------------------------------------------------
 

@@ -15,9 +15,9 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import MultiPolygon, Polygon, box
 
+from fleet.engine.safety import check_steps
 from fleet.floor import compile_floor, convex_pieces, load_floor, parse_spec
 from fleet.floor.build import free_space, speed_cells
-from fleet.safety import check_steps
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 SHIPPED = ["paper_case3.toml", "bump_track.toml", "shop_floor.toml"]

@@ -11,6 +11,7 @@ import shapely
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from fleet.engine.safety import check_steps
 from fleet.errors import PluginError
 from fleet.paths import PathPlanner
 from fleet.plugins import (
@@ -21,8 +22,7 @@ from fleet.plugins import (
     RobotSpec,
     load_controller,
 )
-from fleet.safety import check_steps
-from fleet.testing import CONFORMANCE_SPEC, check_controller, conformance_floor
+from fleet.plugins.testing import CONFORMANCE_SPEC, check_controller, conformance_floor
 from fleet_plugins.follower import PathFollower
 from fleet_plugins.follower.controller import PLAN_SAMPLE
 
@@ -103,7 +103,7 @@ def resting(r: Run) -> bool:
 
 
 def violations(run: Run) -> list[str]:
-    """Every unsafe step, judged by the planner's own step semantics and by fleet.safety."""
+    """Every unsafe step, judged by the planner's own step semantics and by fleet.engine.safety."""
     t, xy, v = run.trajectory()
     out = [f"{x.kind} at t={x.t}: {x.detail}" for x in check_steps(FLOOR, t, xy, v, "r1")]
     for k in range(len(xy) - 1):
@@ -336,8 +336,8 @@ def test_a_start_off_the_planners_grid_is_tracked_to_within_its_rounding() -> No
     run.until(goal, at_goal(goal, tol=1e-9), limit=ref.steps + 5)
     _, xy, _ = run.trajectory()
     assert np.max(np.abs(xy - ref.positions)) <= 5e-10
-    # The planner's own step test forgives it; fleet.safety.check_steps (no distance tolerance)
-    # does not, so only the planner's judgement is asserted here.
+    # The planner's own step test forgives it; fleet.engine.safety.check_steps (no distance
+    # tolerance) does not, so only the planner's judgement is asserted here.
     for k in range(len(xy) - 1):
         assert run.planner.speed_limit(xy[k], xy[k + 1]) is not None
 

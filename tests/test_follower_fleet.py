@@ -21,6 +21,7 @@ import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fleet.engine.safety import check_steps
 from fleet.engine.world import World
 from fleet.errors import NoPathError
 from fleet.floor import Obstacle, compile_floor, parse_spec
@@ -33,7 +34,6 @@ from fleet.plugins import (
     Observation,
     RobotSpec,
 )
-from fleet.safety import check_steps
 from fleet.scenario import REPO_ROOT, Scenario, load_scenario
 from fleet_plugins.follower import PathFollower
 from fleet_plugins.follower.yielding import (

@@ -13,13 +13,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import fleet.gcode.analysis
+import fleet.printing.gcode.analysis
 from fleet.cli import main
 from fleet.errors import GcodeError
-from fleet.gcode import FEATURE_KINDS, STRICTNESS, GcodeTask, analyze
-from fleet.gcode.parse import EXTRUDE, OTHER, TRAVEL, read_program
-from fleet.gcode.tasks import merge
 from fleet.printing import PAPER_CAPS, TASK_KINDS, PrintSchedule
+from fleet.printing.gcode import FEATURE_KINDS, STRICTNESS, GcodeTask, analyze
+from fleet.printing.gcode.parse import EXTRUDE, OTHER, TRAVEL, read_program
+from fleet.printing.gcode.tasks import merge
 from fleet.scenario import REPO_ROOT
 
 PARTS = REPO_ROOT / "parts"
@@ -30,10 +30,10 @@ T_CURA = PARTS / "t_overhang_cura.gcode"
 FIXTURES = [PRISM, T_PRUSA, CUBE, T_CURA]
 RANK = {k: i for i, k in enumerate(STRICTNESS)}
 
-_cache: dict[Path, fleet.gcode.GcodeAnalysis] = {}
+_cache: dict[Path, fleet.printing.gcode.GcodeAnalysis] = {}
 
 
-def analysis(path: Path) -> fleet.gcode.GcodeAnalysis:
+def analysis(path: Path) -> fleet.printing.gcode.GcodeAnalysis:
     """Each fixture is analysed once per test session (the analysis is pure)."""
     if path not in _cache:
         _cache[path] = analyze(path)
@@ -153,9 +153,9 @@ def test_unknown_features_warn_once_and_count_as_other(
     text = text.replace(";TYPE:Perimeter", ";TYPE:Fancy wall").replace(
         ";TYPE:Skirt/Brim", ";TYPE:Mystery"
     )
-    with caplog.at_level(logging.WARNING, logger="fleet.gcode"):
+    with caplog.at_level(logging.WARNING, logger="fleet.printing.gcode"):
         a = analyze(write(tmp_path, text))
-    records = [r for r in caplog.records if r.name == "fleet.gcode"]
+    records = [r for r in caplog.records if r.name == "fleet.printing.gcode"]
     assert len(records) == 1
     assert "'Fancy wall'" in records[0].message and "'Mystery'" in records[0].message
     assert a.warnings == (records[0].message,)
@@ -450,7 +450,7 @@ def test_cli_errors_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_docstring_examples_run() -> None:
-    result = doctest.testmod(fleet.gcode.analysis)
+    result = doctest.testmod(fleet.printing.gcode.analysis)
     assert result.attempted > 0 and result.failed == 0
 
 

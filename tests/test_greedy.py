@@ -9,7 +9,7 @@ from fleet.errors import PluginError
 from fleet.floor import Floor, FloorSpec
 from fleet.paths import PathPlanner
 from fleet.plugins import Assignment, DispatchContext, Job, RobotStatus, load_dispatcher
-from fleet.testing import check_dispatcher, conformance_floor
+from fleet.plugins.testing import check_dispatcher, conformance_floor
 from fleet_plugins.greedy import METRICS, GreedyDispatcher
 
 FLOOR = conformance_floor()

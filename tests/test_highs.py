@@ -134,7 +134,7 @@ def test_a_scheduler_set_up_elsewhere_fails_loudly_with_highs_message():
         import numpy as np
         from fleet import highs
         from fleet.floor import Floor, FloorSpec
-        from fleet.lowerbound import min_time_lower_bound
+        from fleet.study.lowerbound import min_time_lower_bound
         from shapely.geometry import box
 
         # Someone else's first solve sets the process's scheduler up with 2 threads.
@@ -172,7 +172,7 @@ def test_the_bound_is_tight_after_an_mpc_run_in_the_same_process():
     done = fresh_python(
         """
         from fleet.engine import World
-        from fleet.lowerbound import min_time_lower_bound
+        from fleet.study.lowerbound import min_time_lower_bound
         from fleet.scenario import REPO_ROOT, load_scenario
 
         scenario = load_scenario(REPO_ROOT / "scenarios" / "paper_case3_s1.toml")

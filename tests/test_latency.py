@@ -16,7 +16,7 @@ from fleet.cli import main
 from fleet.engine import World
 from fleet.errors import ScenarioError
 from fleet.plugins import Command, Controller, SolveReport, SolverOutcome
-from fleet.robot import clip
+from fleet.plugins.robot import clip
 from fleet.scenario import Latency, Scenario, load_scenario
 
 from .test_engine import MAP, print_scenario

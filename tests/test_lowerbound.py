@@ -10,12 +10,12 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import box
 
+from fleet.engine.safety import check_steps
 from fleet.errors import NoPathError
 from fleet.floor import Floor, FloorSpec
-from fleet.lowerbound import LowerBound, envelope, min_time_lower_bound
 from fleet.paths import PathPlanner
 from fleet.printing import CapSchedule
-from fleet.safety import check_steps
+from fleet.study.lowerbound import LowerBound, envelope, min_time_lower_bound
 
 FAST = (1.0, 1.0)
 TOL = 0.05

@@ -2,9 +2,9 @@
 bind, obstacles, fallbacks, options, both model interfaces, solve reports and the engine.
 
 Every closed loop here is driven by hand: the controller is asked once per tick, the paper's
-double integrator (`fleet.robot.DoubleIntegrator`, which clips the input) moves the robot, and
-the recorded trajectory is judged by the safety checker (`fleet.safety`), never by the
-controller's own plan.
+double integrator (`fleet.plugins.robot.DoubleIntegrator`, which clips the input) moves the
+robot, and the recorded trajectory is judged by the safety checker (`fleet.engine.safety`),
+never by the controller's own plan.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from shapely.geometry import Polygon, box
 
 from fleet.engine import World
+from fleet.engine.safety import check_print_speed, check_steps
 from fleet.errors import MapError, NoPathError, PluginError
 from fleet.floor import Floor, FloorSpec, Obstacle, SpeedZone, compile_floor
 from fleet.floor.mapfile import grow
@@ -36,11 +37,10 @@ from fleet.plugins import (
     SolverOutcome,
     load_controller,
 )
+from fleet.plugins.robot import DoubleIntegrator, brake_input
+from fleet.plugins.testing import CONFORMANCE_SPEC, check_controller, conformance_floor
 from fleet.printing import CapSchedule
-from fleet.robot import DoubleIntegrator, brake_input
-from fleet.safety import check_print_speed, check_steps
 from fleet.scenario import load_scenario
-from fleet.testing import CONFORMANCE_SPEC, check_controller, conformance_floor
 from fleet_plugins.mpc import MPCController
 
 ROOT = Path(__file__).resolve().parents[1]

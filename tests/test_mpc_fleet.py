@@ -28,7 +28,7 @@ from fleet.plugins import (
     RobotSpec,
     SolverOutcome,
 )
-from fleet.robot import DoubleIntegrator, brake_input
+from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet.scenario import parse_scenario
 from fleet_plugins.mpc import MPCController
 from fleet_plugins.mpc.separation import Obstacle, build_separation, predict, spans

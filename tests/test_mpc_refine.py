@@ -15,12 +15,12 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from fleet.engine.safety import check_steps
 from fleet.floor import Floor
 from fleet.highs import new_highs
 from fleet.paths import PathPlanner, Reference
 from fleet.plugins import SolverOutcome
-from fleet.safety import check_steps
-from fleet.testing import CONFORMANCE_SPEC, conformance_floor
+from fleet.plugins.testing import CONFORMANCE_SPEC, conformance_floor
 from fleet_plugins.mpc import refine
 from fleet_plugins.mpc.model import Interface, Solution, StepData, TripModel
 from fleet_plugins.mpc.refine import quadratic_cost, refine_quadratic

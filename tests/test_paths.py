@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, box
 
-import fleet.paths as paths
+import fleet.paths.planner as paths
 from fleet.errors import NoPathError
 from fleet.floor import Floor, FloorSpec
 from fleet.paths import Path, PathPlanner, Reference

@@ -15,7 +15,8 @@ from matplotlib.colors import to_hex
 from fleet.engine import World
 from fleet.errors import InputError
 from fleet.floor import load_floor
-from fleet.plots import (
+from fleet.scenario import JobsConfig, ScriptedJob, default_scenario
+from fleet.view.figures import (
     KIND_COLOURS,
     PrintCap,
     TaskSpan,
@@ -30,7 +31,6 @@ from fleet.plots import (
     step_limits,
     trajectory_figure,
 )
-from fleet.scenario import JobsConfig, ScriptedJob, default_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 CAPS_HEADER = "robot,job,kind,start_s,end_s,cap\n"
@@ -308,7 +308,7 @@ def test_figures_are_drawn_without_a_display_or_pyplot(run_dir):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     env["MPLBACKEND"] = "TkAgg"
     code = (
-        "import sys; from fleet.plots import save_run_figures; "
+        "import sys; from fleet.view.figures import save_run_figures; "
         f"paths = save_run_figures({str(run_dir)!r}); "
         "assert 'matplotlib.pyplot' not in sys.modules, 'pyplot was imported'; "
         "print(*(p.name for p in paths))"

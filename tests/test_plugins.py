@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import fleet.plugins as plugins_module
+import fleet.plugins.discovery as plugins_module
 from fleet.errors import PluginError
 from fleet.plugins import (
     CONTROLLER_GROUP,
@@ -30,8 +30,8 @@ from fleet.plugins import (
     load_controller,
     load_dispatcher,
 )
-from fleet.robot import brake_input
-from fleet.testing import ConformanceError, check_controller, check_dispatcher
+from fleet.plugins.robot import brake_input
+from fleet.plugins.testing import ConformanceError, check_controller, check_dispatcher
 from fleet_plugins.follower import PathFollower
 from fleet_plugins.greedy import GreedyDispatcher
 

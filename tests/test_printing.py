@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from fleet.engine.safety import check_print_speed
 from fleet.printing import PAPER_CAPS, CapSchedule, PrintSchedule, PrintTask
-from fleet.safety import check_print_speed
 
 
 def paper_schedule() -> PrintSchedule:

@@ -1,4 +1,4 @@
-"""Quality-speed profiles, vibration and print-quality prediction (`fleet.quality`)."""
+"""Quality-speed profiles, vibration and print-quality prediction (`fleet.printing.quality`)."""
 
 import math
 import subprocess
@@ -15,7 +15,7 @@ from fleet.errors import CalibrationError
 from fleet.floor.mapfile import load_spec
 from fleet.floor.spec import RoughArea
 from fleet.printing import PAPER_CAPS, PrintTask
-from fleet.quality import (
+from fleet.printing.quality import (
     DEFAULT_TOLERANCES,
     QSP,
     Outcome,

@@ -2,8 +2,8 @@
 
 import re
 
+from fleet.plugins.testing import check_controller, check_dispatcher
 from fleet.scenario import REPO_ROOT
-from fleet.testing import check_controller, check_dispatcher
 
 
 def readme_blocks(language: str) -> list[str]:

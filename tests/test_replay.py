@@ -17,9 +17,10 @@ from matplotlib.image import imread
 
 from fleet.engine import World
 from fleet.errors import InputError
-from fleet.plots import load_jobs, load_run, load_tracks
 from fleet.printing import PrintTask
-from fleet.replay import (
+from fleet.scenario import JobsConfig, ScriptedJob, load_scenario
+from fleet.view.figures import load_jobs, load_run, load_tracks
+from fleet.view.replay import (
     REPLAY_HTML,
     load_plans,
     robot_colour,
@@ -27,7 +28,6 @@ from fleet.replay import (
     view_transform,
     write_replay,
 )
-from fleet.scenario import JobsConfig, ScriptedJob, load_scenario
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 #: What the scripted jobs print, seconds after each print starts: every kind, one uncapped.

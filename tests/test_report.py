@@ -24,7 +24,8 @@ from matplotlib.container import BarContainer
 
 from fleet.engine import World
 from fleet.errors import InputError, PluginError
-from fleet.report import (
+from fleet.scenario import PluginChoice, default_scenario
+from fleet.study.report import (
     Interval,
     Verdict,
     load_study,
@@ -35,7 +36,6 @@ from fleet.report import (
     throughput_figure,
     write_report,
 )
-from fleet.scenario import PluginChoice, default_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 KPI = (
@@ -61,7 +61,7 @@ T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 30: 2.042}
 
 
 def write_study(out: Path, axes: dict[str, list[str]], seeds: list[int], rows: list[dict]) -> Path:
-    """study.json and results.csv in the layout `fleet sweep` (fleet.study) writes; rows hold
+    """study.json and results.csv in the layout `fleet sweep` (fleet.study.sweep) writes; rows hold
     `cell`, `seed`, one key per axis, `status`, optionally `error`, `run_dir` and KPI values."""
     out.mkdir(parents=True, exist_ok=True)
     cells = {

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from shapely.geometry import box
 
+from fleet.engine.safety import SafetyChecker, check_collisions, check_steps
 from fleet.floor import Floor, FloorSpec
-from fleet.robot import DoubleIntegrator, brake_input
-from fleet.safety import SafetyChecker, check_collisions, check_steps
+from fleet.plugins.robot import DoubleIntegrator, brake_input
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ import pytest
 
 from fleet.errors import PluginError, ScenarioError
 from fleet.plugins import load_controller
-from fleet.quality import default_model
+from fleet.printing.quality import default_model
 from fleet.scenario import load_scenario
 from tests.test_print_jobs import run, track_scenario
 

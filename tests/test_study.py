@@ -16,7 +16,7 @@ import pytest
 from fleet.engine import World
 from fleet.errors import FleetError
 from fleet.scenario import load_scenario
-from fleet.study import (
+from fleet.study.sweep import (
     KPI_COLUMNS,
     CellStatus,
     StudyError,

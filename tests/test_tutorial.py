@@ -5,8 +5,8 @@ import tomllib
 
 import pytest
 
+from fleet.plugins.testing import check_controller
 from fleet.scenario import REPO_ROOT
-from fleet.testing import check_controller
 
 TUTORIAL = (REPO_ROOT / "docs" / "tutorial.md").read_text(encoding="utf-8")
 

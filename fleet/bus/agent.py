@@ -49,7 +49,7 @@ from fleet.plugins import (
     Handback,
     Observation,
 )
-from fleet.robot import brake_input
+from fleet.plugins.robot import brake_input
 
 if TYPE_CHECKING:
     from fleet.bus.security import ClientCurve
@@ -83,7 +83,7 @@ _names = itertools.count(1)
 def braking_command(controller: Controller, obs: Observation) -> Command:
     """The command substituted when `controller` failed: brake along the line of travel.
 
-    `fleet.robot.brake_input` with ``dt`` and ``a_max`` from the robot's spec in the
+    `fleet.plugins.robot.brake_input` with ``dt`` and ``a_max`` from the robot's spec in the
     controller's context (set by `Controller.reset`): the acceleration points against the
     velocity, as hard as ``a_max`` allows on the faster axis (stopping within one step if
     that suffices), so the robot slows down on a straight line instead of veering (braking each

@@ -15,7 +15,7 @@ from fleet.printing import CapSchedule, PrintTask
 from fleet.scenario import JobsConfig, ScriptedJob
 
 if TYPE_CHECKING:
-    from fleet.quality import QualityPrediction
+    from fleet.printing.quality import QualityPrediction
 
 __all__ = ["JobRecord", "JobSource", "destination_stations"]
 

@@ -39,6 +39,7 @@ from fleet.engine.agents import (
 )
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.recorder import Recorder
+from fleet.engine.safety import SafetyChecker, SafetyReport
 from fleet.errors import (
     FleetError,
     GcodeError,
@@ -64,13 +65,12 @@ from fleet.plugins import (
     SolveReport,
     load_dispatcher,
 )
+from fleet.plugins.robot import DoubleIntegrator, brake_input, clip
 from fleet.printing import CapSchedule, PrintSchedule, PrintTask
-from fleet.robot import DoubleIntegrator, brake_input, clip
-from fleet.safety import SafetyChecker, SafetyReport
 from fleet.scenario import Latency, Scenario, ScriptedJob, parse_latency
 
 if TYPE_CHECKING:
-    from fleet.quality import QualityModel
+    from fleet.printing.quality import QualityModel
 
 __all__ = ["World", "RobotState", "RunResult"]
 
@@ -395,7 +395,7 @@ class World:
         sc = self.scenario
         if not sc.parts:
             return {}
-        from fleet.gcode import analyze  # parsing G-code is only needed with parts
+        from fleet.printing.gcode import analyze  # parsing G-code is only needed with parts
 
         out = {}
         for name, path in sc.parts.items():

@@ -151,7 +151,7 @@ class Floor:
         """Each region's polygon shrunk by `depth` metres (object array, cached per depth).
 
         What a step must reach to count as entering a region, so that rounding on the boundary
-        does not (`fleet.safety`).
+        does not (`fleet.engine.safety`).
         """
         cores = self._cores.get(depth)
         if cores is None:

@@ -2,7 +2,7 @@
 
 The engine announces every open job in a bus round (`fleet.plugins.Announcement`); each robot's
 agent bids the time it would need to deliver it after the work it already has
-(`fleet.plugins.Controller.bid`, by default `fleet.auction.estimate_completion`). This
+(`fleet.plugins.Controller.bid`, by default `fleet.plugins.bidding.estimate_completion`). This
 dispatcher awards each job to the lowest bid. Jobs nobody bid for are announced again.
 """
 

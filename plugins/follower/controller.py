@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 from fleet.errors import NoPathError
 from fleet.plugins import Command, Controller, ControllerContext, ControlStatus, Observation
-from fleet.robot import brake_input, clip
+from fleet.plugins.robot import brake_input, clip
 from fleet_plugins.follower.yielding import (
     DEFAULT_MARGIN_M,
     DEFAULT_YIELD_S,

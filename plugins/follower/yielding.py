@@ -29,7 +29,7 @@ from fleet.floor import Floor, convex_pieces
 from fleet.floor.build import GRID
 from fleet.paths import PathPlanner
 from fleet.plugins import Neighbour
-from fleet.robot import brake_input
+from fleet.plugins.robot import brake_input
 
 __all__ = [
     "DEFAULT_MARGIN_M",
@@ -60,7 +60,7 @@ def braking_path(
 ) -> list[Sample]:
     """Samples of full braking along the line of travel from state (x, y, vx, vy) at time `t`.
 
-    Starts with ``(t, x, y)`` and applies `fleet.robot.brake_input` each step (the double
+    Starts with ``(t, x, y)`` and applies `fleet.plugins.robot.brake_input` each step (the double
     integrator: the position moves with the velocity held over the step) until the robot is at
     rest; the last sample is where it stops.
     """

@@ -30,8 +30,8 @@ from fleet.plugins import (
     SolveReport,
     SolverOutcome,
 )
+from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet.printing import CapSchedule
-from fleet.robot import DoubleIntegrator, brake_input
 from fleet_plugins.mpc.model import Interface, Solution, StepData, TripModel
 from fleet_plugins.mpc.refine import refine_quadratic
 from fleet_plugins.mpc.separation import (

@@ -12,15 +12,15 @@ from typing import Any
 import numpy as np
 
 from fleet.errors import GcodeError
-from fleet.gcode.features import feature_table
-from fleet.gcode.parse import EXTRUDE, TRAVEL, read_program
-from fleet.gcode.tasks import GcodeTask, merge, segments
-from fleet.gcode.timing import move_times
 from fleet.printing import TASK_KINDS, PrintTask
+from fleet.printing.gcode.features import feature_table
+from fleet.printing.gcode.parse import EXTRUDE, TRAVEL, read_program
+from fleet.printing.gcode.tasks import GcodeTask, merge, segments
+from fleet.printing.gcode.timing import move_times
 
 __all__ = ["GcodeAnalysis", "analyze"]
 
-log = logging.getLogger("fleet.gcode")
+log = logging.getLogger("fleet.printing.gcode")
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ def analyze(
     path:
         A text G-code file from PrusaSlicer, SuperSlicer, Cura or similar.
     min_task_s:
-        Minimum task duration (s); shorter segments merge (see `fleet.gcode.tasks`).
+        Minimum task duration (s); shorter segments merge (see `fleet.printing.gcode.tasks`).
     classification:
         Feature name -> task kind, merged over `FEATURE_KINDS` (names case-insensitive),
         e.g. ``{"Gap fill": "contour"}``.

@@ -30,7 +30,7 @@ are reported as a tie (an interval of zero width, all seeds equal, compares as i
 a conservative test, not a significance test of the difference.
 
 Figures are drawn on `matplotlib.figure.Figure` with an Agg canvas, never pyplot, as in
-`fleet.plots`.
+`fleet.view.figures`.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from fleet.errors import InputError
-from fleet.plots import csv_number
+from fleet.view.figures import csv_number
 
 __all__ = [
     "THROUGHPUT_PNG",
@@ -963,7 +963,7 @@ def _read_study_json(path: Path) -> dict[str, Any]:
 
 def _axes(path: Path, axes: Any) -> dict[str, list[str]]:
     """``study.json``'s axes as name -> labels, from either layout: a list of
-    ``{"name": ..., "labels": [...]}`` (what `fleet.study` writes, grid order) or a mapping
+    ``{"name": ..., "labels": [...]}`` (what `fleet.study.sweep` writes, grid order) or a mapping
     of name -> labels."""
     rule = 'must be a list of {"name": str, "labels": [str, ...]} (or map names to labels)'
     if isinstance(axes, dict):

@@ -64,7 +64,7 @@ from fleet.floor.compiled import Floor
 from fleet.highs import new_highs, solve
 from fleet.printing import CapSchedule
 
-log = logging.getLogger("fleet.lowerbound")
+log = logging.getLogger("fleet.study.lowerbound")
 
 #: Slack (m) on region membership: the safety checker forgives this much rounding.
 POSITION_SLACK = 1e-6

@@ -10,12 +10,11 @@ A MAMbot prints while it drives, and driving spoils the print in two ways this m
   ``severity * c * exp(k * speed)`` mm at the crossing speed; a kick of ``failure_mm`` or more
   ends the print (the paper's safety warnings and AM process failure at 0.8 and 1.0 m/s).
 
-`QualityModel.predict` judges one finished print from the robot's samples: each task's error is
-the QSP at the task's (time-weighted mean) speed plus the largest kick of any rough-area crossing
-during the task; the part passes when every task is within its tolerance. `default_model` fits
-the paper's Table 1 and Table 2 (shipped as ``fleet/data/*.csv``); `QualityModel.from_csv` fits
-a user's own calibration. The model, its choices and every fitted figure are in
-``docs/quality.md``.
+`QualityModel.predict` judges one finished print from the robot's samples: each task's error is the
+QSP at the task's (time-weighted mean) speed plus the largest kick of any rough-area crossing during
+the task; the part passes when every task is within its tolerance. `default_model` fits the paper's
+Table 1 and Table 2 (shipped as ``fleet/printing/data/*.csv``); `QualityModel.from_csv` fits a
+user's own calibration. The model, its choices and every fitted figure are in ``docs/quality.md``.
 
 Semantics of a sample, as in the engine: the velocity ``v[k]`` is held over ``[t_k, t_{k+1})``
 and the robot moves along the straight segment ``p[k] -> p[k+1]`` meanwhile.
@@ -922,8 +921,8 @@ def _number(
 
 # -- the paper's calibration ------------------------------------------------------------------
 def data_file(name: str) -> Path:
-    """Path of a data file shipped in ``fleet/data`` (e.g. ``"table1.csv"``)."""
-    return Path(str(resources.files("fleet") / "data" / name))
+    """Path of a data file shipped in ``fleet/printing/data`` (e.g. ``"table1.csv"``)."""
+    return Path(str(resources.files("fleet.printing") / "data" / name))
 
 
 @functools.lru_cache(maxsize=1)

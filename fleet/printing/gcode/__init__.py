@@ -14,10 +14,10 @@ The engine calls `analyze` once per part and prints `GcodeAnalysis.print_tasks()
 
 from __future__ import annotations
 
-from fleet.gcode.analysis import GcodeAnalysis, analyze
-from fleet.gcode.features import FEATURE_KINDS, STRICTNESS
-from fleet.gcode.tasks import GcodeTask
-from fleet.gcode.timing import DEFAULT_LIMITS, MachineLimits
+from fleet.printing.gcode.analysis import GcodeAnalysis, analyze
+from fleet.printing.gcode.features import FEATURE_KINDS, STRICTNESS
+from fleet.printing.gcode.tasks import GcodeTask
+from fleet.printing.gcode.timing import DEFAULT_LIMITS, MachineLimits
 
 __all__ = [
     "analyze",

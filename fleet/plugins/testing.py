@@ -11,7 +11,7 @@ Use it from your plugin's own test suite, next to a check that your entry point 
 
     # tests/test_conformance.py in your plugin's repository
     from fleet.plugins import discover, load_controller
-    from fleet.testing import check_controller, check_dispatcher
+    from fleet.plugins.testing import check_controller, check_dispatcher
 
     from my_package.control import MyController
     from my_package.dispatch import MyDispatcher
@@ -62,7 +62,7 @@ from fleet.plugins import (
     RobotSpec,
     RobotStatus,
 )
-from fleet.robot import brake_input
+from fleet.plugins.robot import brake_input
 
 __all__ = [
     "ConformanceError",
@@ -113,14 +113,14 @@ DISPATCHER_RULES: dict[str, str] = {
 CONFORMANCE_SPEC = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
 
 ACCEL_TOL = 1e-9  # m/s^2: the brief of the contract, commands are exact numbers
-SPEED_TOL = 1e-6  # m/s: as fleet.safety, forgives a solver's feasibility tolerance
+SPEED_TOL = 1e-6  # m/s: as fleet.engine.safety, forgives a solver's feasibility tolerance
 GOAL_RADIUS = 0.05  # m
 GOAL_SPEED = 0.01  # m/s
 REST_SPEED = 1e-9  # m/s per axis: "at rest" for the zero-acceleration rule
 HOLD_TICKS = 8  # ticks a robot must stay at a reached goal
 REST_SLACK = 2.0  # s: allowed beyond |v|/a_max to bring a robot to rest when the goal goes
 
-_SOURCE = "fleet.testing:conformance_floor"
+_SOURCE = "fleet.plugins.testing:conformance_floor"
 
 
 class ConformanceError(AssertionError):
@@ -226,7 +226,7 @@ def check_controller(
     press, into the slow zone at (17, 1.5), towards (2, 2) and after 4 s to (2, 8) instead;
     towards (2, 2) again until the goal is withdrawn after 3 s, at about 0.9 m/s (the robot
     must come to rest); to (18, 7) again, with the controller's commands replaced by the engine's
-    braking input (`fleet.robot.brake_input`) for 1 s from 3 s into the trip; and stop.
+    braking input (`fleet.plugins.robot.brake_input`) for 1 s from 3 s into the trip; and stop.
     The robot is the double integrator ``p += dt*v; v += dt*clip(u, -a_max, a_max)``.
     Every command is checked as the bus delivers it (``command_from_wire(command_to_wire(c))``)
     and every tick against `CONTROLLER_RULES`; then a second fresh instance replays the same

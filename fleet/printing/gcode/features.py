@@ -11,7 +11,7 @@ MAMbot may drive while it prints that feature:
 - ``support``: support material and its interfaces, thrown away after the print.
 - ``other``: skirt, brim, wipe and prime towers, the slicer's custom start and end code.
 - ``travel``: never in the table; a move that does not extrude is travel or other whatever its
-  feature (see `fleet.gcode.parse`).
+  feature (see `fleet.printing.gcode.parse`).
 
 Names match case-insensitively (surrounding blanks ignored). A name not in the table is
 classified ``other`` and reported once per file.

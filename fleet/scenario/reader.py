@@ -17,7 +17,7 @@ from fleet.errors import ScenarioError
 from fleet.printing import TASK_KINDS, PrintSchedule, PrintTask
 
 if TYPE_CHECKING:
-    from fleet.quality import QualityModel
+    from fleet.printing.quality import QualityModel
 
 __all__ = [
     "RobotsConfig",
@@ -36,7 +36,7 @@ __all__ = [
 ]
 
 #: The source checkout (maps/ and scenarios/ live here in a development install).
-REPO_ROOT = Path(__file__).resolve().parent.parent
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 #: Compute latency (`Scenario.latency`): None for none, "measured", or fixed seconds.
 Latency = float | Literal["measured"] | None
@@ -124,7 +124,7 @@ class BusConfig:
 
 @dataclass(frozen=True)
 class QualityConfig:
-    """How printed parts are judged (see `fleet.quality`).
+    """How printed parts are judged (see `fleet.printing.quality`).
 
     `calibration` is a QSP calibration CSV (None: the paper's Table 1); `tolerance_mm` the
     allowed dimensional error per task kind (kinds not listed: `default_tolerance_mm`).
@@ -146,7 +146,7 @@ class QualityConfig:
         skirt, brim or wipe tower ("other") are not part of the finished part, so they are
         judged only when given a tolerance of their own.
         """
-        from fleet import quality
+        from fleet.printing import quality
 
         base = (
             quality.default_model()
@@ -186,7 +186,7 @@ class Scenario:
     enforce_print_caps: bool = True
     #: Parts jobs may print: name -> G-code file.
     parts: dict[str, Path] = field(default_factory=dict)
-    #: Shortest print task (s) after merging the G-code's features (`fleet.gcode`).
+    #: Shortest print task (s) after merging the G-code's features (`fleet.printing.gcode`).
     min_task_s: float = 10.0
     #: Overrides of the G-code feature -> task kind table.
     classify: dict[str, str] = field(default_factory=dict)
@@ -276,8 +276,8 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     """Validate a scenario's TOML tables `raw` as if read from the file `path`.
 
     Relative paths in `raw` (map, parts, calibration) are relative to `path`'s folder, and
-    errors name `source` (default: `path`). `fleet.study` uses this to validate a scenario with
-    a study cell's values written over the file's.
+    errors name `source` (default: `path`). `fleet.study.sweep` uses this to validate a
+    scenario with a study cell's values written over the file's.
     """
     path = Path(path)
     src = source if source is not None else str(path)

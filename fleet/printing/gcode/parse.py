@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from fleet.errors import GcodeError
-from fleet.gcode.timing import DEFAULT_LIMITS, MachineLimits
+from fleet.printing.gcode.timing import DEFAULT_LIMITS, MachineLimits
 
 __all__ = ["EXTRUDE", "TRAVEL", "OTHER", "DWELL", "Program", "read_program"]
 

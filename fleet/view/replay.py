@@ -5,13 +5,13 @@ inline CSS and JavaScript and the run's data embedded as JSON (``<script
 type="application/json" id="replay-data">``). It needs no server and fetches nothing: no URL
 appears in the page, so it works offline and from ``file://``.
 
-The page draws the floor on a canvas (speed zones in the colours of `fleet.plots.zone_colours`,
-obstacles, the clearance band, rough floor, labelled stations), each robot as a filled circle
-of its radius in its own colour with a velocity tick, its planned horizon (``plans.csv``) as a
-thin dashed line, and its job state (idle, to station, printing, arrived and waiting for the
-print) as a ring and a label. A side panel holds the legend, the robots and the jobs (open,
-assigned, delivered with the outcome). Controls: a time slider, play/pause, a speed select
-(1x, 10x, 60x) and the current time.
+The page draws the floor on a canvas (speed zones in the colours of
+`fleet.view.figures.zone_colours`, obstacles, the clearance band, rough floor, labelled stations),
+each robot as a filled circle of its radius in its own colour with a velocity tick, its planned
+horizon (``plans.csv``) as a thin dashed line, and its job state (idle, to station, printing,
+arrived and waiting for the print) as a ring and a label. A side panel holds the legend, the robots
+and the jobs (open, assigned, delivered with the outcome). Controls: a time slider, play/pause, a
+speed select (1x, 10x, 60x) and the current time.
 
 Seeking is scriptable: the page reads ``#t=SECONDS`` from its URL at load and on every hash
 change, and exposes ``window.replaySeek(t)``.
@@ -38,7 +38,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from fleet.floor import Floor
-from fleet.plots import (
+from fleet.view.figures import (
     KIND_COLOURS,
     RunData,
     csv_number,
@@ -384,7 +384,7 @@ def write_replay(
     Raises
     ------
     InputError
-        A file of the run directory is missing or malformed (see `fleet.plots.load_run`,
+        A file of the run directory is missing or malformed (see `fleet.view.figures.load_run`,
         `load_plans`).
     """
     run = load_run(Path(run_dir), floor)

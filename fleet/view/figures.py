@@ -13,9 +13,9 @@ Everything is drawn on `matplotlib.figure.Figure` objects with an Agg canvas, ne
 display is needed and no global figure state leaks between callers (the CLI, tests, notebooks).
 The readers (`load_run`, `load_tracks`, `load_caps`, `load_tasks`, `load_events`, `load_jobs`)
 and the drawing helpers (`plot_floor`, `zone_colours`, `KIND_COLOURS`) are public so further
-views (`fleet.replay`) share them.
+views (`fleet.view.replay`) share them.
 
-Semantics of a step, as in the engine and `fleet.safety`: the velocity ``v[k]`` is held over
+Semantics of a step, as in the engine and `fleet.engine.safety`: the velocity ``v[k]`` is held over
 ``[t_k, t_{k+1})``; the step's zone limit is ``min(v_zone[k], v_zone[k+1])`` (a step that
 straddles a zone boundary is bound by both sides) and its print cap is the tightest cap of any
 print task overlapping the interval.

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fleet.gcode.features import STRICTNESS, stricter
+from fleet.printing.gcode.features import STRICTNESS, stricter
 
 __all__ = ["GcodeTask", "segments", "merge"]
 

@@ -1,0 +1,11 @@
+"""Reference paths: the portal graph, A*, time-parameterised references, and their checks.
+
+`PathPlanner` answers every "how do I get from here to there on this floor" question of the
+engine and the plugins: the geometric path (A* over the region graph, string pulled), its
+travel time, and a `Reference` a controller can track (speed profile from a HiGHS LP). This
+room imports `fleet.floor`, `fleet.highs` and `fleet.errors`.
+"""
+
+from fleet.paths.planner import CacheInfo, Path, PathPlanner, Reference
+
+__all__ = ["PathPlanner", "Path", "Reference", "CacheInfo"]
