@@ -6,6 +6,7 @@ travel time, and a `Reference` a controller can track (speed profile from a HiGH
 room imports `fleet.floor`, `fleet.highs` and `fleet.errors`.
 """
 
-from fleet.paths.planner import CacheInfo, Path, PathPlanner, Reference
+from fleet.paths.planner import CacheInfo, PathPlanner
+from fleet.paths.results import Path, Reference
 
 __all__ = ["PathPlanner", "Path", "Reference", "CacheInfo"]

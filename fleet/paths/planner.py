@@ -17,13 +17,13 @@ Two layers, both cached per planner:
 
 from __future__ import annotations
 
-__all__ = ["Path", "Reference", "PathPlanner", "CacheInfo"]
+__all__ = ["PathPlanner", "CacheInfo"]
 
 import functools
 import math
 import threading
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import highspy
@@ -36,6 +36,7 @@ from fleet.errors import FleetError, NoPathError
 from fleet.floor.compiled import TOLERANCE as FLOOR_TOLERANCE
 from fleet.floor.compiled import Floor
 from fleet.highs import SolverError, new_highs, solve
+from fleet.paths.results import Path, Reference, make_path, make_reference
 
 #: A segment overlaps a region when they share more than this length (m); less is a point touch.
 OVERLAP_TOL = 1e-9
@@ -63,107 +64,6 @@ MAX_ROUNDS = 8
 _PARALLEL = 1e-12  # |cos| below which a segment runs parallel to a boundary line
 
 XY = tuple[float, float]
-
-
-# -- results ----------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class Path:
-    """A collision-free polyline from start to goal.
-
-    Attributes
-    ----------
-    waypoints:
-        ``(n, 2)`` read-only array; row 0 is the start, row ``n-1`` the goal (``n >= 2``). Each leg
-        between consecutive rows lies in the free space (`PathPlanner.speed_limit` is not None).
-    length:
-        Total length in metres.
-    travel_time:
-        Estimate in seconds: every stretch of every leg driven at its own speed limit (along the
-        leg's direction, per-axis limits), ignoring acceleration. A lower bound on the time of
-        the matching `Reference`, and what dispatchers compare robots by.
-    """
-
-    waypoints: np.ndarray
-    length: float
-    travel_time: float
-
-
-@dataclass(frozen=True, eq=False)
-class Reference:
-    """A time-parameterised reference that the discrete double integrator tracks exactly.
-
-    Sample ``k`` is at time ``t0 + k*dt``. Between samples the robot moves on the straight chord
-    ``p[k] -> p[k+1] = p[k] + dt*v[k]`` at constant velocity ``v[k]``. The samples start at rest
-    at the path's start (``v[0] = 0``, so ``p[1] = p[0]``) and end at rest at its goal
-    (``v[K] = 0``). Every chord lies in the free space and respects the speed limit of every
-    region it overlaps; ``|v[k+1] - v[k]| <= a_max*dt`` on each axis.
-
-    Attributes
-    ----------
-    t0:
-        Time (s) of sample 0.
-    dt:
-        Sample period (s), the robot's control period.
-    positions:
-        ``(K+1, 2)`` read-only array, ``p[0]`` = start, ``p[K]`` = goal.
-    velocities:
-        ``(K+1, 2)`` read-only array; ``v[k]`` is held over ``[t_k, t_{k+1}]``.
-    path:
-        The polyline the samples follow.
-    """
-
-    t0: float
-    dt: float
-    positions: np.ndarray
-    velocities: np.ndarray
-    path: Path
-
-    @property
-    def steps(self) -> int:
-        """K, the number of steps (samples minus one)."""
-        return len(self.positions) - 1
-
-    @property
-    def duration(self) -> float:
-        """``K * dt`` seconds from the first sample to the last."""
-        return self.steps * self.dt
-
-    @property
-    def t_end(self) -> float:
-        """Time of the last sample, when the robot is at rest at the goal."""
-        return self.t0 + self.duration
-
-    @property
-    def times(self) -> np.ndarray:
-        """Sample times ``t0 + k*dt``, shape ``(K+1,)``."""
-        return self.t0 + self.dt * np.arange(len(self.positions))
-
-    def index(self, t: float) -> int:
-        """The sample nearest to time `t`, clamped to ``[0, K]``."""
-        k = round((t - self.t0) / self.dt)
-        return int(min(max(k, 0), self.steps))
-
-    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and velocity at time `t`, following the step semantics.
-
-        The position is interpolated linearly between samples; the velocity is the one held over
-        the step (``v[k]`` on ``[t_k, t_{k+1})``), so ``p(t + h) = p(t) + h*v(t)`` within a step.
-        Before `t0` the robot waits at the start, after `t_end` at the goal, both at rest.
-        """
-        x = (t - self.t0) / self.dt
-        if x <= 0.0:
-            return self.positions[0].copy(), np.zeros(2)
-        if x >= self.steps:
-            return self.positions[-1].copy(), np.zeros(2)
-        # A time a hair before a sample (rounding) belongs to that sample's step.
-        k = min(int(math.floor(x + 1e-9)), self.steps - 1)
-        frac = max(x - k, 0.0)
-        p = self.positions[k] + frac * (self.positions[k + 1] - self.positions[k])
-        return p, self.velocities[k].copy()
-
-    def shifted(self, t0: float) -> Reference:
-        """The same samples starting at time `t0` (arrays are shared, not copied)."""
-        return replace(self, t0=float(t0))
 
 
 class CacheInfo(NamedTuple):
@@ -536,7 +436,7 @@ class PathPlanner:
             )
         s, g = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
         if np.array_equal(s, g):
-            return _make_path(np.array([s, g]), 0.0)
+            return make_path(np.array([s, g]), 0.0)
         nodes = self._search(s, g, rs, rg)
         pts = [s, *(self._pos[n].copy() for n in nodes), g]
         tags = [-1, *(int(self._portal_of[n]) for n in nodes), -1]
@@ -561,7 +461,7 @@ class PathPlanner:
             if t is None:  # pragma: no cover - every leg was checked on the way
                 raise FleetError(f"path leg {a} -> {b} leaves the free space (bug)")
             total += t
-        return _make_path(np.asarray(pts), total)
+        return make_path(np.asarray(pts), total)
 
     def _links(self, p: np.ndarray, regions: np.ndarray) -> list[tuple[int, float]]:
         """Graph nodes reachable in a straight line from `p` (a start or goal) and the times."""
@@ -703,7 +603,7 @@ class PathPlanner:
         pieces = self._pieces(path, dt)
         if not pieces:
             z = np.zeros((1, 2))
-            return _make_reference(dt, path.waypoints[:1].copy(), z, path)
+            return make_reference(dt, path.waypoints[:1].copy(), z, path)
         counts = self._step_counts(pieces, dt)
         for _ in range(MAX_ROUNDS):
             sigma, short = self._solve_speeds(pieces, counts, dt)
@@ -921,7 +821,7 @@ class PathPlanner:
             pos[k + n] = piece.p1
             vel[k : k + n] = (pos[k + 1 : k + 1 + n] - pos[k : k + n]) / dt
             k += n
-        return _make_reference(dt, pos, vel, path)
+        return make_reference(dt, pos, vel, path)
 
     def _verify(self, ref: Reference) -> None:
         """Raise FleetError unless `ref` meets the step semantics to `CHECK_TOL`."""
@@ -1031,22 +931,6 @@ def _trapezoid(length: float, entry: float, exit_: float, top: float, accel: flo
         return max((2 * peak - entry - exit_) / accel, 0.0)
     ramps = (top**2 - entry**2 + top**2 - exit_**2) / (2 * accel)
     return (2 * top - entry - exit_) / accel + max(length - ramps, 0.0) / top
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.ascontiguousarray(a, dtype=float)
-    a.setflags(write=False)
-    return a
-
-
-def _make_path(waypoints: np.ndarray, travel_time: float) -> Path:
-    legs = np.diff(waypoints, axis=0)
-    length = float(np.hypot(legs[:, 0], legs[:, 1]).sum())
-    return Path(_readonly(waypoints), length, float(travel_time))
-
-
-def _make_reference(dt: float, pos: np.ndarray, vel: np.ndarray, path: Path) -> Reference:
-    return Reference(0.0, float(dt), _readonly(pos), _readonly(vel), path)
 
 
 def _safe(point) -> tuple[float, float]:
