@@ -33,18 +33,18 @@ from shapely.geometry import Point
 from shapely.ops import nearest_points
 
 from fleet.errors import FleetError, NoPathError
-from fleet.floor.compiled import TOLERANCE as FLOOR_TOLERANCE
 from fleet.floor.compiled import Floor
 from fleet.highs import SolverError, new_highs, solve
+from fleet.paths.limits import (
+    ON_LINE_TOL,
+    OVERLAP_TOL,
+    SpeedLimits,
+    speed_along,
+    speeds_along,
+    speeds_along_rows,
+)
 from fleet.paths.results import Path, Reference, make_path, make_reference
 
-#: A segment overlaps a region when they share more than this length (m); less is a point touch.
-OVERLAP_TOL = 1e-9
-#: Longest stretch (m) of a segment outside every region that is forgiven as rounding.
-GAP_TOL = 1e-6
-#: Distance (m) within which a point counts as lying on a region's boundary line.
-ON_LINE_TOL = 1e-9
-#: Tolerance of the self-check every reference passes before it is returned.
 CHECK_TOL = 1e-9
 #: Relative tightening of the LP's bounds, so the solver's own tolerance can never show.
 LP_MARGIN = 1e-7
@@ -60,8 +60,6 @@ REFINE_RESOLUTION = 1e-3
 CALM_MAX_STEPS = 4000
 #: Rounds of adding steps to pieces the speed LP cannot cover before stopping at every corner.
 MAX_ROUNDS = 8
-
-_PARALLEL = 1e-12  # |cos| below which a segment runs parallel to a boundary line
 
 XY = tuple[float, float]
 
@@ -124,15 +122,11 @@ class PathPlanner:
         self.margin = float(margin)
 
         regions = floor.regions
-        self._A = np.vstack([r.A for r in regions])
-        self._b = np.concatenate([r.b for r in regions])
-        self._counts = np.array([len(r.b) for r in regions], dtype=np.intp)
-        first = np.concatenate([[0], np.cumsum(self._counts)[:-1]]).astype(np.intp)
-        self._rows = [np.arange(f, f + c) for f, c in zip(first, self._counts, strict=True)]
-        self._bbox = np.array([r.polygon.bounds for r in regions], dtype=float)
-        self._lim = np.minimum(np.array([r.v_max for r in regions], dtype=float), self.v_max)
+        self._limits = SpeedLimits(floor, self.v_max)
         # Fastest possible speed along any direction: keeps the A* heuristic admissible.
-        self._top_speed = float(np.max(np.hypot(self._lim[:, 0], self._lim[:, 1])))
+        self._top_speed = float(
+            np.max(np.hypot(self._limits.per_region[:, 0], self._limits.per_region[:, 1]))
+        )
         self._component = np.zeros(len(regions), dtype=np.intp)
         for c, members in enumerate(nx.connected_components(floor.graph)):
             self._component[list(members)] = c
@@ -186,7 +180,9 @@ class PathPlanner:
         the segment leaves the free space for more than `GAP_TOL` metres. For a zero-length
         segment, the regions containing the point count.
         """
-        lim, ok = self._limits(np.asarray([p], dtype=float), np.asarray([q], dtype=float))
+        lim, ok = self._limits.of_segments(
+            np.asarray([p], dtype=float), np.asarray([q], dtype=float)
+        )
         if not ok[0]:
             return None
         return float(lim[0, 0]), float(lim[0, 1])
@@ -201,125 +197,6 @@ class PathPlanner:
         self._ref_cached.cache_clear()
 
     # -- geometry on the H-representation -----------------------------------------------------
-    def _clip(self, P: np.ndarray, Q: np.ndarray):
-        """Clip segments ``P[i] -> Q[i]`` against the regions near them (Cyrus-Beck).
-
-        Returns ``L`` (n,), ``u`` (n, 2) unit directions, ``lo`` and ``hi`` (n, m): the overlap
-        with region ``sel[j]`` is ``[lo[:, j], hi[:, j]]`` in metres along the segment (empty if
-        lo > hi), ``contains`` (n, m): whether that region holds the start point, and ``sel``
-        (m,): the regions whose bounding box meets the segments' (the others cannot overlap).
-        """
-        d = Q - P
-        L = np.hypot(d[:, 0], d[:, 1])
-        u = d / np.where(L > 0, L, 1.0)[:, None]
-        pad = FLOOR_TOLERANCE
-        lo_xy = np.minimum(P.min(axis=0), Q.min(axis=0)) - pad
-        hi_xy = np.maximum(P.max(axis=0), Q.max(axis=0)) + pad
-        box = self._bbox
-        sel = np.flatnonzero(
-            (box[:, 0] <= hi_xy[0])
-            & (box[:, 2] >= lo_xy[0])
-            & (box[:, 1] <= hi_xy[1])
-            & (box[:, 3] >= lo_xy[1])
-        )
-        n = len(L)
-        if len(sel) == 0:
-            empty = np.zeros((n, 0))
-            return L, u, empty, empty, empty.astype(bool), sel
-        rows = np.concatenate([self._rows[i] for i in sel])
-        offsets = np.concatenate([[0], np.cumsum(self._counts[sel])[:-1]]).astype(np.intp)
-        A, b = self._A[rows], self._b[rows]
-        num = b[None, :] - P @ A.T
-        den = u @ A.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bound = num / den
-        par = np.abs(den) <= _PARALLEL
-        upper = np.where(den > _PARALLEL, bound, np.inf)
-        lower = np.where(den < -_PARALLEL, bound, -np.inf)
-        # Running along (or outside) a boundary line: the whole segment is in or out of it.
-        upper = np.where(par & (num < -ON_LINE_TOL), -np.inf, upper)
-        hi = np.minimum(np.minimum.reduceat(upper, offsets, axis=1), L[:, None])
-        lo = np.maximum(np.maximum.reduceat(lower, offsets, axis=1), 0.0)
-        contains = np.logical_and.reduceat(num >= -FLOOR_TOLERANCE, offsets, axis=1)
-        return L, u, lo, hi, contains, sel
-
-    def _limits(self, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorised `speed_limit`: per-segment limits (n, 2) and whether each stays free."""
-        L, _, lo, hi, contains, sel = self._clip(P, Q)
-        point = L <= OVERLAP_TOL
-        over = (hi - lo) > OVERLAP_TOL
-        use = np.where(point[:, None], contains, over)
-        lim = np.where(use[:, :, None], self._lim[sel][None, :, :], np.inf).min(
-            axis=1, initial=np.inf
-        )
-        lim = np.minimum(lim, self.v_max)
-        return lim, self._covered(L, lo, hi, contains)
-
-    def _covered(self, L, lo, hi, contains) -> np.ndarray:
-        """Whether each clipped segment stays in the free space (no gap over `GAP_TOL`)."""
-        point = L <= OVERLAP_TOL
-        if lo.shape[1] == 0:
-            return np.zeros(len(L), dtype=bool)
-        over = (hi - lo) > OVERLAP_TOL
-        # Covered when the overlaps, sorted by start, leave no gap longer than GAP_TOL.
-        lo_m = np.where(over, lo, np.inf)
-        hi_m = np.where(over, hi, -np.inf)
-        order = np.argsort(lo_m, axis=1)
-        lo_s = np.take_along_axis(lo_m, order, axis=1)
-        reach = np.maximum.accumulate(np.take_along_axis(hi_m, order, axis=1), axis=1)
-        before = np.concatenate([np.zeros((len(L), 1)), reach[:, :-1]], axis=1)
-        gaps = np.where(np.isfinite(lo_s), lo_s - before, 0.0)
-        ok = np.all(gaps <= GAP_TOL, axis=1) & (reach[:, -1] >= L - GAP_TOL)
-        return np.where(point, contains.any(axis=1), ok)
-
-    def _stretches(
-        self, p: np.ndarray, q: np.ndarray
-    ) -> list[tuple[float, float, np.ndarray]] | None:
-        """Split ``p -> q`` where its speed limit changes: ``[(from_m, to_m, (vx, vy)), ...]``.
-
-        Each stretch's limit is the minimum over the regions it overlaps with positive length,
-        so any sub-segment of a stretch obeys it. None if the segment leaves the free space.
-        """
-        L, _, lo, hi, _, sel = self._clip(p[None, :], q[None, :])
-        L, lo, hi = float(L[0]), lo[0], hi[0]
-        over = np.flatnonzero((hi - lo) > OVERLAP_TOL)
-        cuts = np.sort(np.concatenate([[0.0, L], lo[over], hi[over]]))
-        kept = [0.0]
-        for c in cuts[1:]:
-            if c - kept[-1] > OVERLAP_TOL:
-                kept.append(float(c))
-        kept[-1] = L
-        out: list[tuple[float, float, np.ndarray]] = []
-        for a, b in zip(kept[:-1], kept[1:], strict=True):
-            cover = over[(lo[over] <= a + OVERLAP_TOL) & (hi[over] >= b - OVERLAP_TOL)]
-            if len(cover) == 0:
-                if b - a > GAP_TOL:
-                    return None
-                # A rounding gap between regions joins the stretch before it (or after it).
-                if out:
-                    out[-1] = (out[-1][0], b, out[-1][2])
-                continue
-            lim = np.minimum(self._lim[sel[cover]].min(axis=0), self.v_max)
-            if out and np.array_equal(out[-1][2], lim):
-                out[-1] = (out[-1][0], b, lim)
-            else:
-                out.append((a if out else 0.0, b, lim))
-        if not out:
-            return None if L > GAP_TOL else []
-        return out
-
-    def _segment_time(self, p: np.ndarray, q: np.ndarray) -> float | None:
-        """Time (s) to drive ``p -> q`` with every stretch at its limit; None if not free."""
-        parts = self._stretches(p, q)
-        if parts is None:
-            return None
-        d = q - p
-        L = math.hypot(d[0], d[1])
-        if L == 0.0:
-            return 0.0
-        u = d / L
-        return sum((b - a) / _along(lim, u) for a, b, lim in parts)
-
     # -- the portal graph ---------------------------------------------------------------------
     def _portal_offsets(self, length: float) -> np.ndarray:
         """Node positions (m from one end) on a portal: its inset ends, its midpoint and evenly
@@ -377,13 +254,13 @@ class PathPlanner:
             # region, so only this region's limit applies; chords along a boundary line may
             # overlap neighbours (or leave the free space) and get the exact treatment.
             u = d / np.where(L > 0, L, 1.0)[:, None]
-            w = L / _along_many(self._lim[r.index], u)
+            w = L / speeds_along(self._limits.per_region[r.index], u)
             edges = []
             for m in range(len(iu)):
                 a, b = int(ids[iu[m]]), int(ids[ju[m]])
                 weight: float | None = float(w[m])
                 if along_edge[m]:
-                    weight = self._segment_time(pos_arr[a], pos_arr[b])
+                    weight = self._limits.segment_time(pos_arr[a], pos_arr[b])
                 if weight is None or L[m] <= 0:
                     continue
                 old = g.get_edge_data(a, b)
@@ -408,7 +285,7 @@ class PathPlanner:
 
     def _regions_at(self, p: XY, which: str, start: XY, goal: XY) -> np.ndarray:
         P = np.asarray([p], dtype=float)
-        _, _, _, _, contains, sel = self._clip(P, P)
+        _, _, _, _, contains, sel = self._limits.clip(P, P)
         inside = sel[contains[0]]
         if len(inside) == 0:
             near = nearest_points(self.floor.free_space, Point(p))[0]
@@ -457,7 +334,7 @@ class PathPlanner:
             pts = [pts[i] for i in self._pull(pts)]
         total = 0.0
         for a, b in zip(pts[:-1], pts[1:], strict=True):
-            t = self._segment_time(a, b)
+            t = self._limits.segment_time(a, b)
             if t is None:  # pragma: no cover - every leg was checked on the way
                 raise FleetError(f"path leg {a} -> {b} leaves the free space (bug)")
             total += t
@@ -472,11 +349,11 @@ class PathPlanner:
         P = np.broadcast_to(p, Q.shape)
         # p and the node share a convex region, so the segment is inside it: its limit is the
         # minimum over what it overlaps, and that is also its exact per-stretch limit.
-        lim, ok = self._limits(P, Q)
+        lim, ok = self._limits.of_segments(P, Q)
         d = Q - P
         L = np.hypot(d[:, 0], d[:, 1])
         u = d / np.where(L > 0, L, 1.0)[:, None]
-        w = L / np.maximum(_along_rows(lim, u), 1e-300)
+        w = L / np.maximum(speeds_along_rows(lim, u), 1e-300)
         return [(n, float(t)) for n, t, good in zip(ids, w, ok, strict=True) if good]
 
     def _search(self, s: np.ndarray, g: np.ndarray, rs: np.ndarray, rg: np.ndarray) -> list[int]:
@@ -494,7 +371,7 @@ class PathPlanner:
             graph = self._graph
             graph.add_edges_from((S, n, {"weight": w}) for n, w in self._links(s, rs))
             graph.add_edges_from((n, G, {"weight": w}) for n, w in self._links(g, rg))
-            direct = self._segment_time(s, g)
+            direct = self._limits.segment_time(s, g)
             if direct is not None:
                 graph.add_edge(S, G, weight=direct)
             try:
@@ -520,7 +397,7 @@ class PathPlanner:
         From each kept point, jump to the farthest later point that can be reached in a straight
         line without being slower than the route through the points in between.
         """
-        times = [self._segment_time(a, b) for a, b in zip(pts[:-1], pts[1:], strict=True)]
+        times = [self._limits.segment_time(a, b) for a, b in zip(pts[:-1], pts[1:], strict=True)]
         cum = np.concatenate([[0.0], np.cumsum([np.inf if t is None else t for t in times])])
         keep = [0]
         last = len(pts) - 1
@@ -528,7 +405,7 @@ class PathPlanner:
             i = keep[-1]
             j = last
             while j > i + 1:
-                t = self._segment_time(pts[i], pts[j])
+                t = self._limits.segment_time(pts[i], pts[j])
                 if t is not None and t <= cum[j] - cum[i] + 1e-12:
                     break
                 j -= 1
@@ -542,7 +419,7 @@ class PathPlanner:
         portal with vectorised leg times, and a move only when the exact leg times improve.
         """
         pts = [p.copy() for p in pts]
-        legs = [self._segment_time(a, b) for a, b in zip(pts[:-1], pts[1:], strict=True)]
+        legs = [self._limits.segment_time(a, b) for a, b in zip(pts[:-1], pts[1:], strict=True)]
         for _ in range(REFINE_SWEEPS):
             moved = False
             for i in range(1, len(pts) - 1):
@@ -561,7 +438,7 @@ class PathPlanner:
                     X = a + ts[:, None] * (b - a)
                     P = np.concatenate([np.broadcast_to(prev, X.shape), X])
                     Q = np.concatenate([X, np.broadcast_to(nxt, X.shape)])
-                    t, ok = self._times(P, Q)
+                    t, ok = self._limits.travel_times(P, Q)
                     total = np.where(ok[:9] & ok[9:], t[:9] + t[9:], np.inf)
                     k = int(np.argmin(total))
                     if not np.isfinite(total[k]):
@@ -573,29 +450,13 @@ class PathPlanner:
                 if best_t is None:
                     continue
                 x = a + best_t * (b - a)
-                t1, t2 = self._segment_time(prev, x), self._segment_time(x, nxt)
+                t1, t2 = self._limits.segment_time(prev, x), self._limits.segment_time(x, nxt)
                 if t1 is not None and t2 is not None and t1 + t2 < legs[i - 1] + legs[i] - 1e-9:
                     pts[i], legs[i - 1], legs[i] = x, t1, t2
                     moved = True
             if not moved:
                 break
         return pts
-
-    def _times(self, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorised travel times of segments ``P[i] -> Q[i]`` and whether each is free.
-
-        Each region's overlap is driven at that region's limit; a stretch along a shared
-        boundary counts once per region, so the time is exact or an overestimate.
-        """
-        L, u, lo, hi, contains, sel = self._clip(P, Q)
-        over = np.maximum(hi - lo, 0.0)
-        over = np.where(over > OVERLAP_TOL, over, 0.0)
-        with np.errstate(divide="ignore"):
-            speed = np.where(
-                np.abs(u)[:, None, :] > 0, self._lim[sel][None] / np.abs(u)[:, None, :], np.inf
-            )
-        t = (over / speed.min(axis=2)).sum(axis=1)
-        return t, self._covered(L, lo, hi, contains)
 
     # -- timing -------------------------------------------------------------------------------
     def _plan_reference(self, start: XY, goal: XY, dt: float) -> Reference:
@@ -637,7 +498,7 @@ class PathPlanner:
             if L <= OVERLAP_TOL:
                 continue
             u = d / L
-            parts = self._stretches(a, b)
+            parts = self._limits.stretches(a, b)
             if parts is None:  # pragma: no cover - paths are checked when planned
                 raise FleetError(f"path leg {a} -> {b} leaves the free space (bug)")
             spans = _merge_spans([[s0, s1, lim] for s0, s1, lim in parts], u, dt)
@@ -645,7 +506,7 @@ class PathPlanner:
             for s0, s1, lim in spans:
                 p0 = a if s0 == 0.0 else a + d * (s0 / L)
                 p1 = b if s1 == L else a + d * (s1 / L)
-                pieces.append(_Piece(p0, p1, u, s1 - s0, _along(lim, u), accel))
+                pieces.append(_Piece(p0, p1, u, s1 - s0, speed_along(lim, u), accel))
         return pieces
 
     def _step_counts(self, pieces: list[_Piece], dt: float) -> list[int]:
@@ -838,7 +699,7 @@ class PathPlanner:
         dv = np.abs(np.diff(v, axis=0)).max()
         if dv > self.a_max * dt + CHECK_TOL:
             problems.append(f"changes velocity by {dv:.6g} m/s in one step (> a_max*dt)")
-        lim, ok = self._limits(p[:-1], p[1:])
+        lim, ok = self._limits.of_segments(p[:-1], p[1:])
         if not ok.all():
             k = int(np.flatnonzero(~ok)[0])
             problems.append(f"step {k} from {p[k]} to {p[k + 1]} leaves the free space")
@@ -880,48 +741,28 @@ def _merge_spans(spans: list[list], u: np.ndarray, dt: float) -> list[list]:
         for k in range(len(spans) - 1):
             a, b = spans[k], spans[k + 1]
             both = np.minimum(a[2], b[2])
-            if _along(both, u) >= max(_along(a[2], u), _along(b[2], u)) * (1 - 1e-12):
+            fastest = max(speed_along(a[2], u), speed_along(b[2], u))
+            if speed_along(both, u) >= fastest * (1 - 1e-12):
                 spans[k : k + 2] = [[a[0], b[1], both]]
                 changed = True
                 break
         if changed:
             continue
         for k, (s0, s1, lim) in enumerate(spans):
-            speed = _along(lim, u)
+            speed = speed_along(lim, u)
             if s1 - s0 >= speed * dt:
                 continue
             m = min(
                 (m for m in (k - 1, k + 1) if 0 <= m < len(spans)),
-                key=lambda m: _along(spans[m][2], u),
+                key=lambda m: speed_along(spans[m][2], u),
             )
-            if _along(spans[m][2], u) > speed:
+            if speed_along(spans[m][2], u) > speed:
                 continue
             lo, hi = min(k, m), max(k, m)
             spans[lo : hi + 1] = [[spans[lo][0], spans[hi][1], np.minimum(lim, spans[m][2])]]
             changed = True
             break
     return spans
-
-
-def _along(lim: np.ndarray, u: np.ndarray) -> float:
-    """Highest speed along unit direction `u` inside the per-axis box `lim`."""
-    best = math.inf
-    for axis in (0, 1):
-        c = abs(float(u[axis]))
-        if c > 0:
-            best = min(best, float(lim[axis]) / c)
-    return best
-
-
-def _along_many(lim: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """`_along` for one limit and many directions (rows of `u`)."""
-    return _along_rows(np.broadcast_to(lim, u.shape), u)
-
-
-def _along_rows(lim: np.ndarray, u: np.ndarray) -> np.ndarray:
-    with np.errstate(divide="ignore"):
-        r = np.where(np.abs(u) > 0, lim / np.abs(u), np.inf)
-    return r.min(axis=1)
 
 
 def _trapezoid(length: float, entry: float, exit_: float, top: float, accel: float) -> float:
