@@ -1,18 +1,10 @@
-"""Reference paths on a compiled floor, and time-parameterised references that robots track.
+"""`PathPlanner`, the room's public face: paths and references for one robot on one floor, cached.
 
-Two layers, both cached per planner:
-
-- `PathPlanner.path` finds a fast collision-free polyline: A* (networkx) over a static graph of
-  points on the portals between convex regions, then string pulling and sliding each waypoint
-  along its portal. Leg costs are travel times at each stretch's per-axis speed limit, so a path
-  may go around a slow zone when that is quicker.
-- `PathPlanner.reference` turns that polyline into a `Reference`: samples of the paper's discrete
-  double integrator (``p[k+1] = p[k] + dt*v[k]``) from rest at the start to rest at the goal.
-  Every corner and every speed-limit change falls exactly on a sample (very short stretches are
-  merged into their slower neighbour, which is conservative), and a HiGHS LP picks the speeds,
-  so the reference meets the project's step semantics exactly: each step's chord stays in
-  the free space, every axis of ``v[k]`` respects the lowest limit of every region the chord
-  overlaps with positive length, and ``|v[k+1] - v[k]| <= a_max*dt`` per axis.
+It builds the room's parts once per robot type and floor, and keeps their answers: the zones'
+`SpeedLimits` (`fleet.paths.limits`), the `PortalGraph` that finds a path
+(`fleet.paths.graph`), and the `Timing` that turns a path into a `Reference`
+(`fleet.paths.timing`). Both caches are keyed on the start and goal rounded to `KEY_DECIMALS`
+decimals, and planning uses the rounded points, so a cached answer is the answer.
 """
 
 from __future__ import annotations
@@ -44,7 +36,6 @@ class CacheInfo(NamedTuple):
     reference: functools._CacheInfo
 
 
-# -- the planner ------------------------------------------------------------------------------
 class PathPlanner:
     """Paths and references for one robot type on one floor.
 
@@ -61,9 +52,9 @@ class PathPlanner:
     a_max:
         The robot's per-axis acceleration bound (m/s^2).
     spacing:
-        Wanted gap (m) between graph nodes along a portal (at most `MAX_PORTAL_NODES` per
-        portal); the waypoints are then slid along their portals, so this mostly matters for
-        which way around things the search goes.
+        Wanted gap (m) between graph nodes along a portal (at most
+        `fleet.paths.graph.MAX_PORTAL_NODES` per portal); the waypoints are then slid along
+        their portals, so this mostly matters for which way around things the search goes.
     margin:
         Waypoints on a portal stay this far (m) from its end points, which are often obstacle
         corners: a small safety margin on top of the floor's clearance.
@@ -141,8 +132,8 @@ class PathPlanner:
 
         The component-wise minimum of `v_max` over every region the segment overlaps with
         positive length (a point touch does not count), and of the robot's own `v_max`; None if
-        the segment leaves the free space for more than `GAP_TOL` metres. For a zero-length
-        segment, the regions containing the point count.
+        the segment leaves the free space for more than `fleet.paths.limits.GAP_TOL` metres.
+        For a zero-length segment, the regions containing the point count.
         """
         lim, ok = self._limits.of_segments(
             np.asarray([p], dtype=float), np.asarray([q], dtype=float)
@@ -175,6 +166,7 @@ class PathPlanner:
         return round(x, KEY_DECIMALS) + 0.0, round(y, KEY_DECIMALS) + 0.0
 
     def _plan_reference(self, start: XY, goal: XY, dt: float) -> Reference:
+        """A reference cache miss: the path, through its own cache, timed."""
         return self._timing.reference(self._path_cached(start, goal), dt)
 
 

@@ -270,6 +270,7 @@ class Timing:
     def _assemble(
         self, pieces: list[_Piece], counts: list[int], sigma: np.ndarray, dt: float, path: Path
     ) -> Reference:
+        """The samples: from rest at the first piece's start, each piece in its steps at `sigma`."""
         K = sum(counts) + 1
         pos = np.zeros((K + 1, 2))
         vel = np.zeros((K + 1, 2))
