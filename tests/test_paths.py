@@ -11,10 +11,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, box
 
-import fleet.paths.planner as paths
+import fleet.paths.timing as timing
 from fleet.errors import NoPathError
 from fleet.floor import Floor, FloorSpec
 from fleet.paths import Path, PathPlanner, Reference
+from fleet.paths.planner import KEY_DECIMALS
 
 MAPS = FilePath(__file__).resolve().parent.parent / "maps"
 
@@ -269,7 +270,7 @@ def test_driving_along_a_zone_boundary_obeys_the_zone():
 def test_stop_and_go_fallback_is_valid_too(monkeypatch):
     floor = hall(slow_top=0.3)
     normal = PathPlanner(floor).reference((1, 9), (9, 1), dt=0.25)
-    monkeypatch.setattr(paths, "MAX_ROUNDS", 0)
+    monkeypatch.setattr(timing, "MAX_ROUNDS", 0)
     fallback = PathPlanner(floor).reference((1, 9), (9, 1), dt=0.25)
     assert_valid(floor, fallback, (1, 9), (9, 1))
     assert fallback.duration >= normal.duration
@@ -338,8 +339,8 @@ free_points = st.tuples(st.floats(0, 10), st.floats(0, 10)).filter(
 def test_random_references_on_the_hall_are_always_valid(start, goal, dt):
     floor = HALL
     ref = HALL_PLANNER.reference(start, goal, dt=dt)
-    s = tuple(round(c, paths.KEY_DECIMALS) for c in start)
-    g = tuple(round(c, paths.KEY_DECIMALS) for c in goal)
+    s = tuple(round(c, KEY_DECIMALS) for c in start)
+    g = tuple(round(c, KEY_DECIMALS) for c in goal)
     assert_valid(floor, ref, s, g, v_max=0.8, a_max=0.7)
     assert_legs_free(floor, HALL_PLANNER, ref.path)
 
@@ -356,8 +357,8 @@ def test_random_references_in_the_u_corridor_are_valid_or_refused(start, goal):
             U_PLANNER.reference(start, goal, dt=0.25)
         return
     ref = U_PLANNER.reference(start, goal, dt=0.25)
-    s = tuple(round(c, paths.KEY_DECIMALS) for c in start)
-    g = tuple(round(c, paths.KEY_DECIMALS) for c in goal)
+    s = tuple(round(c, KEY_DECIMALS) for c in start)
+    g = tuple(round(c, KEY_DECIMALS) for c in goal)
     assert_valid(floor, ref, s, g)
 
 
