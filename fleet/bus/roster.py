@@ -122,7 +122,7 @@ class Roster:
         """Add `robots` to the robots of the run; others are refused from now on."""
         self.expected = frozenset(robots) | (self.expected or frozenset())
 
-    def uncovered(self) -> frozenset[str]:
+    def uncovered(self) -> set[str]:
         """The expected robots no agent hosts."""
         return (self.expected or frozenset()) - self.owner.keys()
 
