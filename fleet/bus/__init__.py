@@ -1,16 +1,20 @@
 """The bus: how the engine talks to robot agents over ZeroMQ.
 
 `schema` is the versioned wire format, `transport` the address checks and sockets, `exchange`
-the engine's side (`Exchange`: one OBSERVE/ACT round trip per control tick) and `agent` the
-robots' side (`AgentHost`: wraps the controllers of the robots it hosts). The same classes work
-in one process over ``inproc://`` (pumped synchronously, deterministic) and across processes
-over ``ipc://`` and ``tcp://``. Besides commands, the bus carries the contract net (job
-announcements, bids, handbacks) and liveness (heartbeats; `BusEvent` says which agents joined,
-were lost, left or were refused).
+the engine's side (`Exchange`: one OBSERVE/ACT round trip per control tick, with `roster` for
+who is connected, `lockstep` for one round, `answers` for the valid parts of the ACTs and
+`router` for its socket) and `agent` the robots' side (`AgentHost`: wraps the controllers of
+the robots it hosts, with `link` for its socket and `responder` for calling the controllers).
+The same classes work in one process over ``inproc://`` (pumped synchronously,
+deterministic) and across processes over ``ipc://`` and ``tcp://``. Besides commands, the bus
+carries the contract net (job announcements, bids, handbacks) and liveness (heartbeats;
+`BusEvent` says which agents joined, were lost, left or were refused).
 """
 
-from fleet.bus.agent import AGENT_STATS, AgentHost, braking_command
-from fleet.bus.exchange import EXCHANGE_STATS, BusEvent, BusEventKind, Exchange
+from fleet.bus.agent import AGENT_STATS, AgentHost
+from fleet.bus.exchange import EXCHANGE_STATS, Exchange
+from fleet.bus.responder import braking_command
+from fleet.bus.roster import BusEvent, BusEventKind
 from fleet.bus.schema import (
     SCHEMA_VERSION,
     Message,

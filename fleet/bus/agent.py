@@ -23,6 +23,9 @@ one is queued, so after a stall the host answers the newest and skips the rest (
 In one process the engine pumps local hosts itself (`Exchange.add_local`); in another process
 (or thread) call `AgentHost.serve`, which returns when the exchange says BYE. The host's name is
 its ZeroMQ routing id, so the exchange knows it again after a dropped connection comes back.
+
+The host keeps the conversation with the exchange (HELLO, WELCOME, OBSERVE, BYE, heartbeats);
+its `link` carries the messages and its `responder` calls the controllers.
 """
 
 from __future__ import annotations
@@ -33,28 +36,21 @@ import math
 import os
 import time
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import zmq
 
-from fleet.bus.schema import Message, MessageKind, command_to_wire, decode, encode
-from fleet.bus.transport import ROUTING_ID_MAX, connect_dealer, default_context
-from fleet.errors import MessageError, PluginError
-from fleet.plugins import (
-    Announcement,
-    Bid,
-    Command,
-    Controller,
-    ControlStatus,
-    Handback,
-    Observation,
-)
-from fleet.plugins.robot import brake_input
+from fleet.bus.link import Link
+from fleet.bus.responder import Responder
+from fleet.bus.schema import Message, MessageKind
+from fleet.bus.transport import ROUTING_ID_MAX, default_context
+from fleet.errors import PluginError
+from fleet.plugins import Controller
 
 if TYPE_CHECKING:
     from fleet.bus.security import ClientCurve
 
-__all__ = ["AgentHost", "AGENT_STATS", "braking_command"]
+__all__ = ["AgentHost", "AGENT_STATS"]
 
 #: Counters kept in `AgentHost.stats`.
 AGENT_STATS = (
@@ -74,28 +70,7 @@ AGENT_STATS = (
     "heartbeats",  # HEARTBEATs sent
 )
 
-# Plain ints: pyzmq's enum flags cost microseconds per operation on the hot path.
-_EVENTS, _POLLIN, _NOBLOCK = int(zmq.EVENTS), int(zmq.POLLIN), int(zmq.NOBLOCK)
-_EXPECT = (MessageKind.WELCOME, MessageKind.OBSERVE, MessageKind.BYE)
 _names = itertools.count(1)
-
-
-def braking_command(controller: Controller, obs: Observation) -> Command:
-    """The command substituted when `controller` failed: brake along the line of travel.
-
-    `fleet.plugins.robot.brake_input` with ``dt`` and ``a_max`` from the robot's spec in the
-    controller's context (set by `Controller.reset`): the acceleration points against the
-    velocity, as hard as ``a_max`` allows on the faster axis (stopping within one step if
-    that suffices), so the robot slows down on a straight line instead of veering (braking each
-    axis on its own stops the slower axis first and bends the path). Zero acceleration if there
-    is no context or spec.
-    """
-    spec = getattr(getattr(controller, "context", None), "spec", None)
-    if spec is None or not spec.period > 0:
-        return Command(0.0, 0.0, ControlStatus.ERROR)
-    ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
-    # -0.0 would print oddly in logs and traces; a robot at rest gets exactly zero.
-    return Command(ax + 0.0, ay + 0.0, ControlStatus.ERROR)
 
 
 class AgentHost:
@@ -202,15 +177,13 @@ class AgentHost:
         self.last_tick = -1
         self.heartbeat_s: float | None = None if heartbeat_s is None else float(heartbeat_s)
         self.scenario = scenario
-        self._failed: set[str] = set()
-        self._bid_failed: set[str] = set()
-        self._handed_back: dict[str, str] = {}  # robot -> the job it last handed back
-        self._last_sent = time.monotonic()
-        if curve is None:
-            self.socket = connect_dealer(self.context, address, self.identity)
-        else:
-            self.socket = connect_dealer(self.context, address, self.identity, curve=curve)
-        self._send(MessageKind.HELLO, 0, {"robots": list(self.controllers), "scenario": scenario})
+        self._responder = Responder(name, self.controllers, self.stats, self.log)
+        self._link = Link(
+            self.context, address, self.identity, curve, name=name, stats=self.stats, log=self.log
+        )
+        self.socket = self._link.socket
+        hello = {"robots": list(self.controllers), "scenario": scenario}
+        self._link.send(MessageKind.HELLO, 0, hello)
 
     # -- running ----------------------------------------------------------------------------
     def pump(self, timeout_ms: int | None = 0) -> bool:
@@ -223,52 +196,7 @@ class AgentHost:
         """
         if self.closed:
             return False
-        sock = self.socket
-        if timeout_ms == 0:
-            # Asking for EVENTS is much cheaper than a recv that fails with zmq.Again.
-            if not sock.getsockopt(_EVENTS) & _POLLIN:
-                return False
-        elif not sock.poll(timeout_ms, zmq.POLLIN):
-            return False
-        try:
-            frames = sock.recv_multipart(_NOBLOCK)
-        except zmq.Again:
-            return False
-        msg = self._read(frames)
-        if msg is None:
-            return True
-        if msg.kind is not MessageKind.OBSERVE:
-            self._handle(msg)
-            return True
-        # The exchange has given up on an OBSERVE once a newer one is queued: after a stall,
-        # answering each in turn would only keep the host behind.
-        batch = [msg]
-        while sock.getsockopt(_EVENTS) & _POLLIN:
-            try:
-                frames = sock.recv_multipart(_NOBLOCK)
-            except zmq.Again:
-                break
-            queued = self._read(frames)
-            if queued is not None:
-                batch.append(queued)
-        if len(batch) == 1:
-            self._observe(msg)
-            return True
-        newest: dict[str, Message] = {}  # by sender: a stranger must not displace the exchange
-        for queued in batch:
-            if queued.kind is MessageKind.OBSERVE:
-                newest[queued.sender] = queued
-        for queued in batch:
-            if queued.kind is MessageKind.OBSERVE and newest[queued.sender] is not queued:
-                self.stats["skipped"] += 1
-                self.log.debug(
-                    "agent %s: skipped OBSERVE for tick %d: a newer one is queued",
-                    self.name,
-                    queued.tick,
-                )
-            else:
-                self._handle(queued)
-        return True
+        return self._link.receive(timeout_ms, self._handle)
 
     def serve(self, idle_timeout_s: float | None = None) -> None:
         """Answer the exchange until it says BYE (or nothing arrives for `idle_timeout_s`).
@@ -290,7 +218,7 @@ class AgentHost:
                     )
                     return
             if self.heartbeat_s is not None and self.accepted:
-                due = self._last_sent + self.heartbeat_s - now
+                due = self._link.last_sent + self.heartbeat_s - now
                 if due <= 0:
                     self._heartbeat()
                     due = self.heartbeat_s
@@ -303,7 +231,7 @@ class AgentHost:
         if self.closed:
             return
         if not self.finished:
-            self._send(MessageKind.BYE, max(self.last_tick, 0), {"reason": "agent closing"})
+            self._link.send(MessageKind.BYE, max(self.last_tick, 0), {"reason": "agent closing"})
         self.socket.close()
         self.closed = True
 
@@ -327,18 +255,6 @@ class AgentHost:
         return f"<AgentHost {self.name!r} -> {self.address}: {len(self.controllers)} robots>"
 
     # -- handlers ---------------------------------------------------------------------------
-    def _read(self, frames: list[bytes]) -> Message | None:
-        """The message in `frames`, or None if it was rejected (counted and logged)."""
-        self.stats["messages_received"] += 1
-        if len(frames) != 1:
-            self._reject(f"{len(frames)} frames, expected 1")
-            return None
-        try:
-            return decode(frames[0], _EXPECT)
-        except MessageError as exc:
-            self._reject(str(exc))
-            return None
-
     def _handle(self, msg: Message) -> None:
         if msg.kind is MessageKind.OBSERVE:
             self._observe(msg)
@@ -351,7 +267,9 @@ class AgentHost:
         accepted = msg.body["accepted"]
         strangers = [r for r in accepted if r not in self.controllers]
         if strangers:
-            self._reject(f"WELCOME from {msg.sender!r} accepts robots we do not host: {strangers}")
+            self._link.reject(
+                f"WELCOME from {msg.sender!r} accepts robots we do not host: {strangers}"
+            )
             return
         self.exchange = msg.sender
         self.accepted = frozenset(accepted)
@@ -361,10 +279,10 @@ class AgentHost:
 
     def _observe(self, msg: Message) -> None:
         if self.accepted is None:
-            self._reject(f"OBSERVE from {msg.sender!r} before WELCOME")
+            self._link.reject(f"OBSERVE from {msg.sender!r} before WELCOME")
             return
         if msg.sender != self.exchange:
-            self._reject(
+            self._link.reject(
                 f"OBSERVE from unknown sender {msg.sender!r} (exchange is {self.exchange!r})"
             )
             return
@@ -379,146 +297,31 @@ class AgentHost:
             return
         self.last_tick = msg.tick
         tick = msg.tick
-        commands: dict[str, dict] = {}
-        bids: list[Bid] = []
-        handbacks: list[Handback] = []
-        accepted = self.accepted
-        announcements = msg.body["announcements"]
         beat = self.heartbeat_s
-        for obs in msg.body["observations"]:
-            robot = obs.robot
-            if robot not in accepted or robot in commands:
-                self.stats["unknown_robots"] += 1
-                self.log.warning(
-                    "agent %s: tick %d: observation of robot %s, which %s",
-                    self.name,
-                    tick,
-                    robot,
-                    "appears twice" if robot in commands else "this host does not serve",
-                )
-                continue
-            wire, status = self._compute(robot, obs)
-            commands[robot] = wire
-            job = obs.job
-            last = self._handed_back.get(robot)
-            if last is not None and last != job:
-                del self._handed_back[robot]  # it has moved on: a new job may be handed back
-                last = None
-            if status is ControlStatus.BLOCKED and job is not None and last is None:
-                handbacks.append(Handback(robot, job, "blocked"))
-                self._handed_back[robot] = job
-            for announcement in announcements:
-                bid = self._bid(robot, obs, announcement)
-                if bid is not None:
-                    bids.append(bid)
+
+        def keep_alive() -> None:
             # A cheap clock check per robot keeps a long OBSERVE from looking like silence.
-            if beat is not None and time.monotonic() - self._last_sent >= beat:
+            if beat is not None and time.monotonic() - self._link.last_sent >= beat:
                 self._heartbeat(tick)
+
+        commands, bids, handbacks = self._responder.answer(
+            tick, msg.body["observations"], msg.body["announcements"], self.accepted, keep_alive
+        )
         self.stats["observations"] += len(commands)
         self.stats["bids"] += len(bids)
         self.stats["handbacks"] += len(handbacks)
         body = {"commands": commands, "bids": bids, "handbacks": handbacks}
-        self._send(MessageKind.ACT, tick, body)
-
-    def _compute(self, robot: str, obs: Observation) -> tuple[dict, ControlStatus]:
-        """The command's wire form and status; braking (ERROR) if the controller failed."""
-        controller = self.controllers[robot]
-        try:
-            command = controller.compute(obs)
-            return command_to_wire(command), command.status
-        except Exception as exc:  # a plugin may raise anything; the fleet must keep running
-            self.stats["controller_errors"] += 1
-            first = robot not in self._failed
-            self._failed.add(robot)
-            # Once per robot with the traceback; later failures only at debug level (they are
-            # counted in `stats` and in the run summary), so a failing plugin cannot flood the log.
-            self.log.log(
-                logging.WARNING if first else logging.DEBUG,
-                "agent %s: robot %s: controller %s failed at tick %d (%s: %s); braking%s",
-                self.name,
-                robot,
-                type(controller).__name__,
-                obs.tick,
-                type(exc).__name__,
-                exc,
-                " (further failures of this robot are logged at debug level)" if first else "",
-                exc_info=first,
-            )
-            return command_to_wire(braking_command(controller, obs)), ControlStatus.ERROR
-
-    def _bid(self, robot: str, obs: Observation, job: Announcement) -> Bid | None:
-        """The robot's bid for `job`, or None (declined, failed or not a valid estimate)."""
-        controller = self.controllers[robot]
-        try:
-            estimate: Any = controller.bid(obs, job)
-        except Exception as exc:  # a plugin may raise anything; the fleet must keep running
-            self.stats["bid_errors"] += 1
-            self._bid_trouble(
-                robot,
-                f"controller {type(controller).__name__} failed to bid for job {job.job} at"
-                f" tick {obs.tick} ({type(exc).__name__}: {exc}); no bid",
-                exc_info=True,
-            )
-            return None
-        if estimate is None:
-            self.stats["bids_declined"] += 1
-            return None
-        try:
-            value = float(estimate) if not isinstance(estimate, bool | str) else math.nan
-        except (TypeError, ValueError, OverflowError):
-            value = math.nan
-        if not (math.isfinite(value) and value >= 0.0):
-            self.stats["bids_dropped"] += 1
-            self._bid_trouble(
-                robot,
-                f"controller {type(controller).__name__} bid {estimate!r} for job {job.job} at"
-                f" tick {obs.tick}: a bid must be a finite number of seconds >= 0 (or None to"
-                " decline); dropped",
-            )
-            return None
-        return Bid(job.job, robot, value)
-
-    def _bid_trouble(self, robot: str, what: str, exc_info: bool = False) -> None:
-        # Once per robot at warning level; later ones at debug level (they are counted).
-        first = robot not in self._bid_failed
-        self._bid_failed.add(robot)
-        self.log.log(
-            logging.WARNING if first else logging.DEBUG,
-            "agent %s: robot %s: %s%s",
-            self.name,
-            robot,
-            what,
-            " (further bid trouble of this robot is logged at debug level)" if first else "",
-            exc_info=exc_info and first,
-        )
+        self._link.send(MessageKind.ACT, tick, body)
 
     def _heartbeat(self, tick: int | None = None) -> None:
         self.stats["heartbeats"] += 1
-        self._send(MessageKind.HEARTBEAT, max(self.last_tick if tick is None else tick, 0), {})
+        self._link.send(MessageKind.HEARTBEAT, max(self.last_tick if tick is None else tick, 0), {})
 
     def _bye(self, msg: Message) -> None:
         if self.exchange is not None and msg.sender != self.exchange:
-            self._reject(f"BYE from unknown sender {msg.sender!r}")
+            self._link.reject(f"BYE from unknown sender {msg.sender!r}")
             return
         self.finished = True
         self.log.info(
             "agent %s: exchange %s said bye: %s", self.name, msg.sender, msg.body["reason"]
         )
-
-    # -- plumbing ---------------------------------------------------------------------------
-    def _send(self, kind: MessageKind, tick: int, body: dict) -> None:
-        raw = encode(kind, self.name, tick, body)
-        try:
-            self.socket.send(raw, _NOBLOCK)
-        except zmq.ZMQError as exc:
-            # A heartbeat that cannot go out (the exchange gone or far behind) is retried soon
-            # anyway: not worth a warning every heartbeat_s.
-            level = logging.DEBUG if kind is MessageKind.HEARTBEAT else logging.WARNING
-            self.log.log(level, "agent %s: could not send %s: %s", self.name, kind.name, exc)
-            return
-        self._last_sent = time.monotonic()
-        self.stats["messages_sent"] += 1
-
-    def _reject(self, why: str) -> None:
-        self.stats["messages_rejected"] += 1
-        self.log.warning("agent %s: dropped message: %s", self.name, why)

@@ -6,33 +6,24 @@ the acceleration bound. Starting from rest where the reference starts, commandin
 ``u[k] = (v_ref[k+1] - v[k]) / dt`` therefore reproduces it to rounding, and the follower needs
 no model of the floor of its own. Everything else here is about the moments when the robot is
 *not* on a fresh reference: a new goal while moving, no goal, a speed cap, or a disturbance,
-and about other robots (`fleet_plugins.follower.yielding`): with neighbours in sight every
-command is checked before it is sent, and a deadlock is answered with a detour.
+and about other robots (`guard`, built on `yielding`): with neighbours in sight every command
+is checked before it is sent, and a deadlock is answered with a detour. The tracking law is in
+`track`, the choice of speed and planner in `pace`; the follower keeps the state from tick to
+tick and decides, per observation, which of them acts.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-from typing import TYPE_CHECKING
 
 from fleet.errors import NoPathError
 from fleet.plugins import Command, Controller, ControllerContext, ControlStatus, Observation
-from fleet.plugins.robot import brake_input, clip
-from fleet_plugins.follower.yielding import (
-    DEFAULT_MARGIN_M,
-    DEFAULT_YIELD_S,
-    Detour,
-    Forecast,
-    Sample,
-    braking_path,
-    must_yield,
-    stops_clear,
-)
-
-if TYPE_CHECKING:
-    from fleet.floor import Floor
-    from fleet.paths import PathPlanner, Reference
+from fleet.plugins.robot import brake_input
+from fleet_plugins.follower.guard import Guard
+from fleet_plugins.follower.pace import Planners, speed_limit
+from fleet_plugins.follower.track import Track
+from fleet_plugins.follower.yielding import DEFAULT_MARGIN_M, DEFAULT_YIELD_S
 
 __all__ = [
     "PathFollower",
@@ -41,18 +32,12 @@ __all__ = [
     "PrintFirst",
     "CAP_MODES",
     "REST_SPEED",
-    "FEEDBACK_DEADBAND",
-    "REPLAN_ERROR",
     "PLAN_HORIZON",
     "PLAN_SAMPLE",
 ]
 
 #: Per-axis speed (m/s) below which the robot counts as at rest (rounding, not motion).
 REST_SPEED = 1e-9
-#: Position error (m) below which no feedback is added: exact tracking leaves only rounding.
-FEEDBACK_DEADBAND = 1e-6
-#: Position error (m) from the reference above which tracking is abandoned (brake, replan).
-REPLAN_ERROR = 1e-3
 #: How far ahead (s) the `Command.plan` reaches.
 PLAN_HORIZON = 5.0
 #: Spacing (s) of the `Command.plan` samples.
@@ -73,11 +58,11 @@ class PathFollower(Controller):
     - **new goal while moving**: brake to rest first, then plan from where the robot stopped.
     - **tracking**: at tick time t with ``k = ref.index(t)``, the command is
       ``u = (v_ref[k+1] - v) / dt`` plus, when the predicted error
-      ``e = p_ref[k+1] - (p + dt*v)`` exceeds `FEEDBACK_DEADBAND`, a feedback ``gain * e / dt**2``
-      that removes the fraction `gain` of the error per period. The next velocity is then
-      clipped per axis to the reference's own speed at that step (never faster than the safe
-      reference) and the acceleration to ``a_max`` per axis.
-    - **off track** (more than `REPLAN_ERROR` from the reference, e.g. after the engine
+      ``e = p_ref[k+1] - (p + dt*v)`` exceeds `track.FEEDBACK_DEADBAND`, a feedback
+      ``gain * e / dt**2`` that removes the fraction `gain` of the error per period. The next
+      velocity is then clipped per axis to the reference's own speed at that step (never
+      faster than the safe reference) and the acceleration to ``a_max`` per axis.
+    - **off track** (more than `track.REPLAN_ERROR` from the reference, e.g. after the engine
       substituted braking): brake to rest, then plan again.
     - **print speed caps** (``obs.speed_caps``, the caps of the coming
       `fleet.plugins.CAP_LOOKAHEAD_S` seconds, and ``obs.speed_cap``): plans with a planner whose
@@ -210,13 +195,8 @@ class PathFollower(Controller):
         self.rough_v_max = None if rough_v_max is None else float(rough_v_max)
         self.margin_m = float(margin_m)
         self.yield_s = float(yield_s)
-        self._detour: Detour | None = None
-        self._blockers: list[tuple[str, float, float, float]] = []
-        self._samples: tuple[list[float], ...] = ([], [], [], [])
         self._plan_steps = 0
         self._plan_stride = 1
-        self._hold_steps = 0
-        self._planners: dict[float, PathPlanner] = {}
         self._clear()
 
     def __repr__(self) -> str:
@@ -235,16 +215,15 @@ class PathFollower(Controller):
         # About one plan sample per second: enough for neighbours and the replay, and cheap
         # to send every tick.
         self._plan_stride = max(1, round(PLAN_SAMPLE / dt))
-        self._hold_steps = math.ceil(self.yield_s / dt - 1e-9)
-        self._planners = {}
-        self._detour = None
-        self._floor = context.floor
-        if self.rough_v_max is not None and context.floor.spec.rough_areas:
-            self._floor = _rough_floor(context.floor, self.rough_v_max)
+        self._planners = Planners(context, self.rough_v_max)
+        hold_steps = math.ceil(self.yield_s / dt - 1e-9)
+        self._guard = Guard(
+            context.spec, self._planners.floor, self.margin_m, self.yield_s, hold_steps
+        )
         self._clear()
 
     def _clear(self) -> None:
-        self._ref: Reference | None = None
+        self._track: Track | None = None
         self._goal: tuple[float, float] | None = None
         self._cap = math.inf
         self._route_key: tuple[str, ...] | None = None
@@ -259,20 +238,20 @@ class PathFollower(Controller):
             self._clear()
             return self._brake(obs, ControlStatus.IDLE)
         if self.print_first and obs.print_end_s is not None and obs.t < obs.print_end_s:
-            self._ref = None
+            self._track = None
             return self._brake(obs, ControlStatus.OK)  # printing standing still
         goal = (float(obs.goal[0]), float(obs.goal[1]))
-        cap = self._speed_limit(obs)
+        cap = speed_limit(obs, spec, self.speed, self.caps)
         if cap <= REST_SPEED:
-            self._ref = None
+            self._track = None
             return self._brake(obs, ControlStatus.OK)
 
-        route = self._route(obs)
+        route = self._guard.route(obs)
         key = None if route is None else route.key
         stale = goal != self._goal or cap != self._cap or key != self._route_key
-        if self._ref is not None and (stale or self._off_track(obs)):
-            self._ref = None
-        if self._ref is None:
+        if self._track is not None and (stale or self._track.off_track(obs)):
+            self._track = None
+        if self._track is None:
             self._waiting = False
             if max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
                 return self._brake(obs, ControlStatus.OK)
@@ -284,95 +263,42 @@ class PathFollower(Controller):
             if self._failed == attempt:
                 return self._brake(obs, failure)
             try:
-                planner = self._planner(cap) if route is None else self._detour_planner(obs, cap)
+                if route is None:
+                    planner = self._planners.at(cap)
+                else:
+                    planner = self._guard.detour_planner(obs, cap)
                 if planner is None:
                     raise NoPathError((obs.x, obs.y), goal, "the blockers close every route")
-                self._ref = planner.reference(
-                    start=(obs.x, obs.y), goal=goal, dt=spec.period, t0=obs.t
-                )
+                ref = planner.reference(start=(obs.x, obs.y), goal=goal, dt=spec.period, t0=obs.t)
             except NoPathError:
                 self._failed = attempt
                 return self._brake(obs, failure)
             self._goal, self._cap, self._route_key, self._failed = goal, cap, key, None
-            ref = self._ref
-            self._samples = (
-                ref.positions[:, 0].tolist(),
-                ref.positions[:, 1].tolist(),
-                ref.velocities[:, 0].tolist(),
-                ref.velocities[:, 1].tolist(),
-            )
-        cmd = self._track(obs, self._ref)
-        if obs.neighbours:
-            return self._guard(obs, self._ref, cmd)
+            self._track = Track(ref)
+        track = self._track
+        cmd = track.command(
+            obs,
+            dt=spec.period,
+            a_max=spec.a_max,
+            gain=self.gain,
+            steps=self._plan_steps,
+            stride=self._plan_stride,
+        )
+        if obs.neighbours and not self._guard.may_go(obs, track, cmd, self._cap):
+            return self._hold(obs, track)
         self._waiting = False
         return cmd
 
-    # -- other robots -----------------------------------------------------------------------------
-    def _guard(self, obs: Observation, ref: Reference, cmd: Command) -> Command:
-        """`cmd` if the robot may go on (rules 1 and 2 of the class docstring), else a hold."""
-        spec = self.context.spec
-        dt, a_max = spec.period, spec.a_max
-        forecasts = [Forecast.of(n, obs.t, dt, a_max) for n in obs.neighbours]
-        # The next state is fixed but for this command's velocity; from there, full braking.
-        vx, vy = obs.vx + dt * clip(cmd.ax, a_max), obs.vy + dt * clip(cmd.ay, a_max)
-        stop = braking_path(obs.t + dt, obs.x + dt * obs.vx, obs.y + dt * obs.vy, vx, vy, dt, a_max)
-        # Where it would stop must stay clear a while too: stopping right in the way of a
-        # robot about to pass is no stop in time.
-        t_stop, x_stop, y_stop = stop[-1]
-        held = [(t_stop + i * dt, x_stop, y_stop) for i in range(1, self._hold_steps + 1)]
-        blockers = set(obs.blockers)  # routed round: waiting for them would undo the detour
-        higher = [
-            f
-            for f in forecasts
-            if f.priority > obs.priority and f.has_plan and f.robot not in blockers
-        ]
-        if higher:
-            # The braking horizon from the top speed, plus the time to get there: the window
-            # then ends at the same spot while the robot speeds up, so a robot that set off
-            # never sees a conflict it could not see at rest (no creeping start-stop-start).
-            top = min(self._cap, spec.v_max)
-            speed = min(max(abs(obs.vx), abs(obs.vy)), top)
-            own = self._own_path(obs, ref, (2.0 * top - speed) / a_max + self.yield_s)
-            for f in higher:
-                if must_yield(own, f, spec.radius + f.radius + self.margin_m):
-                    return self._hold(obs, ref)
-        now = (obs.t, obs.x, obs.y)
-        # Round lower-priority blockers the detour keeps what it could (less than the gap when
-        # they were stuck close): hold it to that. Higher ones go first (they route round this
-        # one): the robot only moves away from them while that close.
-        gaps = None
-        if self._detour is not None and obs.blockers:
-            gaps = {
-                f.robot: min(
-                    spec.radius + f.radius + self.margin_m, self._detour.clearance[f.robot] - 1e-3
-                )
-                for f in forecasts
-                if f.robot in self._detour.clearance and f.priority < obs.priority
-            }
-        if not stops_clear(stop + held, forecasts, spec.radius, self.margin_m, now, gaps):
-            return self._hold(obs, ref)
-        self._waiting = False
-        return cmd
-
-    def _own_path(self, obs: Observation, ref: Reference, horizon: float) -> list[Sample]:
-        """The reference's samples over the next `horizon` seconds: where the robot would be."""
-        dt = self.context.spec.period
-        xs, ys = self._samples[0], self._samples[1]
-        last = len(xs) - 1
-        k = ref.index(obs.t)
-        n = math.ceil(horizon / dt - 1e-9)
-        return [(obs.t + i * dt, xs[min(k + i, last)], ys[min(k + i, last)]) for i in range(n + 1)]
-
-    def _hold(self, obs: Observation, ref: Reference) -> Command:
+    def _hold(self, obs: Observation, track: Track) -> Command:
         """Brake to rest (forgetting the reference), or stay at rest with it kept ready."""
         if max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
             # It stops: the plan it sends says so, and it plans again once at rest.
-            self._ref = None
+            self._track = None
             self._waiting = False
             return self._brake(obs, ControlStatus.OK)
-        if ref.index(obs.t) == 0:
+        if track.ref.index(obs.t) == 0:
             # Not started yet: start the reference again at the next tick.
-            self._ref = ref.shifted(obs.t + self.context.spec.period)
+            self._track = track.shifted(obs.t + self.context.spec.period)
         # The hold is news on its first tick, then sent about once per PLAN_SAMPLE like a route.
         send = not self._waiting or obs.tick % self._plan_stride == 0
         self._waiting = True
@@ -380,81 +306,6 @@ class PathFollower(Controller):
             return Command(0.0, 0.0, ControlStatus.OK)
         held = ((obs.t, obs.x, obs.y), (obs.t + PLAN_HORIZON, obs.x, obs.y))
         return Command(0.0, 0.0, ControlStatus.OK, held)
-
-    def _route(self, obs: Observation) -> Detour | None:
-        """The detour round this observation's blockers (those in sight), None without any."""
-        if not obs.blockers:
-            self._detour = None
-            return None
-        seen = {n.robot: n for n in obs.neighbours}
-        blockers = [
-            (n.robot, n.x, n.y, n.radius)
-            for name in sorted(set(obs.blockers))
-            if (n := seen.get(name)) is not None
-        ]
-        if not blockers:
-            self._detour = None
-            return None
-        key = tuple(b[0] for b in blockers)
-        if self._detour is None or self._detour.key != key:
-            # Once per set of blockers: cutting them out of the floor and building a planner
-            # take about 0.15 to 0.25 s on the shop floor.
-            self._blockers = blockers
-            self._detour = self._build_detour(obs)
-        return self._detour
-
-    def _build_detour(self, obs: Observation) -> Detour:
-        spec = self.context.spec
-        # Past the gap by the drift a parked robot is granted (`Forecast`), so that the
-        # stopping check lets the robot drive the detour past a blocker that sends no plan.
-        drift = math.sqrt(2.0) * spec.a_max * spec.period**2
-        return Detour.build(
-            self._floor,
-            self._blockers,
-            spec.radius,
-            self.margin_m + drift,
-            (obs.x, obs.y),
-            spec.a_max,
-        )
-
-    def _detour_planner(self, obs: Observation, cap: float) -> PathPlanner | None:
-        """The detour's planner at speed `cap`, rebuilt if the robot stands in a blocker's
-        obstacle (it came closer than the margin since the detour was built)."""
-        detour = self._detour
-        assert detour is not None
-        floor = detour.floor
-        if floor is not None and not floor.is_free(obs.x, obs.y):
-            detour = self._detour = self._build_detour(obs)
-        return detour.planner(min(cap, self.context.spec.v_max))
-
-    def _track(self, obs: Observation, ref: Reference) -> Command:
-        # Plain floats on this path: it runs once per robot per tick, and numpy's per-call
-        # overhead on 2-vectors would dominate.
-        dt, a_max = self.context.spec.period, self.context.spec.a_max
-        xs, ys, vxs, vys = self._samples
-        last = len(xs) - 1
-        k = ref.index(obs.t)
-        nxt = min(k + 1, last)
-        tx, ty = vxs[nxt], vys[nxt]
-        # Where p[k+1] lands versus where it should be.
-        ex = xs[nxt] - (obs.x + dt * obs.vx)
-        ey = ys[nxt] - (obs.y + dt * obs.vy)
-        if max(abs(ex), abs(ey)) > FEEDBACK_DEADBAND:
-            # v[k+1] = v_ref[k+1] + gain*e/dt leaves (1 - gain)*e at the step after next.
-            tx += self.gain / dt * ex
-            ty += self.gain / dt * ey
-        bx, by = abs(vxs[nxt]), abs(vys[nxt])
-        ux = clip((clip(tx, bx) - obs.vx) / dt, a_max)
-        uy = clip((clip(ty, by) - obs.vy) / dt, a_max)
-        stride = self._plan_stride
-        if k % stride:
-            # The plan is sent about once per PLAN_SAMPLE; between, the last one still holds.
-            return Command(ux, uy, ControlStatus.OK)
-        stop = min(last, k + self._plan_steps)
-        # The last sample always: near the goal it is where the robot will rest.
-        steps = [*range(k, stop, stride), stop]
-        plan = tuple((ref.t0 + i * dt, xs[i], ys[i]) for i in steps)
-        return Command(ux, uy, ControlStatus.OK, plan)
 
     def _brake(self, obs: Observation, status: ControlStatus) -> Command:
         """Slow down along the current direction of travel at the full per-axis bound."""
@@ -470,56 +321,6 @@ class PathFollower(Controller):
             t, x, y, vx, vy = t + dt, x + dt * vx, y + dt * vy, vx + dt * bx, vy + dt * by
             plan.append((t, x, y))
         return Command(ax, ay, status, tuple(plan))
-
-    # -- helpers --------------------------------------------------------------------------------
-    def _speed_limit(self, obs: Observation) -> float:
-        """The speed (m/s per axis) to plan at, from the robot, `speed` and the print caps."""
-        spec = self.context.spec
-        pace = spec.v_max if self.speed is None else min(spec.v_max, self.speed)
-        if self.caps == "ignore":
-            return pace
-        cap = pace if obs.speed_cap is None else min(pace, float(obs.speed_cap))
-        # "ahead": long enough to brake to rest from the fastest the robot can be going before
-        # a tighter cap starts (pace/a_max rounded up to whole periods; the velocity of the step
-        # in progress is already fixed).
-        ahead = obs.t + pace / spec.a_max + 2.0 * spec.period
-        until = math.inf if self.caps == "window" else ahead
-        for start, _, piece_cap in obs.speed_caps:
-            if start < until:
-                cap = min(cap, float(piece_cap))
-        return cap
-
-    def _off_track(self, obs: Observation) -> bool:
-        assert self._ref is not None
-        k = self._ref.index(obs.t)
-        xs, ys = self._samples[0], self._samples[1]
-        return max(abs(xs[k] - obs.x), abs(ys[k] - obs.y)) > REPLAN_ERROR
-
-    def _planner(self, cap: float) -> PathPlanner:
-        """The context's planner, or one for a robot capped at `cap` m/s (built once per cap)."""
-        spec = self.context.spec
-        if cap >= spec.v_max and self._floor is self.context.floor:
-            return self.context.planner
-        cap = min(cap, spec.v_max)
-        if cap not in self._planners:
-            from fleet.paths import PathPlanner  # only speed caps need a planner of our own
-
-            self._planners[cap] = PathPlanner(self._floor, v_max=cap, a_max=spec.a_max)
-        return self._planners[cap]
-
-
-# Floors with slow rough areas, shared by every robot of a run: (floor, v) -> floor.
-_ROUGH_FLOORS: dict[tuple[int, float], tuple[Floor, Floor]] = {}
-
-
-def _rough_floor(floor: Floor, v_max: float) -> Floor:
-    key = (id(floor), v_max)
-    if key not in _ROUGH_FLOORS or _ROUGH_FLOORS[key][0] is not floor:
-        from fleet.floor import slow_on_rough
-
-        _ROUGH_FLOORS.clear()  # one run's floor at a time: no growth over a long study
-        _ROUGH_FLOORS[key] = (floor, slow_on_rough(floor.spec, v_max))
-    return _ROUGH_FLOORS[key][1]
 
 
 class FixedSpeed(PathFollower):

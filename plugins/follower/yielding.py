@@ -1,6 +1,6 @@
 """The follower's safety layer around other robots: forecasts, stopping checks, yielding, detours.
 
-Three pieces, each usable on its own (the `PathFollower` strings them together):
+Three pieces, each usable on its own (`guard.Guard` strings them together):
 
 - `Forecast`: where a neighbour's centre can be at a future time. A neighbour with a plan is
   on its plan (linear between samples, from its current position to the first sample; after

@@ -1,15 +1,17 @@
 """`MPCController`: the paper's mixed-integer MPC, tracking the path layer's reference.
 
 Per control tick: take the measured state, pick the reference window and the corridor of
-regions each horizon step may use, update the trip's model (`model.TripModel`), solve it with
-HiGHS and apply the first input. The trip model is built once per reference and updated in
-place; a new goal, or a fallback, starts a new trip.
+regions each horizon step may use (`horizon`) and the robots to keep clear of (`neighbours`),
+update the trip's model (`model.TripModel`), solve it with HiGHS (refined by `refine` for the
+quadratic cost) and apply the first input, or fall back (`fallback`). The trip model is built
+once per reference and updated in place; a new goal, or a fallback, starts a new trip. The
+controller keeps what lasts from tick to tick (the trip, the last plan, the counts of
+benchmarks) and its options (`options` checks them).
 """
 
 from __future__ import annotations
 
 import math
-import numbers
 import time
 from typing import Any
 
@@ -18,47 +20,32 @@ import numpy as np
 
 from fleet.errors import NoPathError
 from fleet.highs import new_highs
-from fleet.paths import Reference
 from fleet.plugins import (
-    CAP_LOOKAHEAD_S,
     Command,
     Controller,
     ControllerContext,
     ControlStatus,
-    Neighbour,
     Observation,
     SolveReport,
     SolverOutcome,
 )
-from fleet.plugins.robot import DoubleIntegrator, brake_input
-from fleet.printing import CapSchedule
-from fleet_plugins.mpc.model import Interface, Solution, StepData, TripModel
-from fleet_plugins.mpc.refine import refine_quadratic
-from fleet_plugins.mpc.separation import (
-    Obstacle,
-    Separation,
-    at_rest,
-    build_separation,
-    predict,
-    reaches,
-    spans,
-)
-from fleet_plugins.mpc.trip import Trip, reach_boxes
+from fleet_plugins.mpc.fallback import brake, follow_previous
+from fleet_plugins.mpc.horizon import region_bounds, step_data
+from fleet_plugins.mpc.model import Solution, StepData, TripModel
+from fleet_plugins.mpc.neighbours import clear_of_neighbours, robots_to_avoid
+from fleet_plugins.mpc.options import check_horizon, check_options
+from fleet_plugins.mpc.refine import refine_milp
+from fleet_plugins.mpc.separation import Separation, build_separation, spans
+from fleet_plugins.mpc.trip import Trip
 
 __all__ = ["MPCController"]
 
-#: Per-axis speed (m/s) below which the robot counts as at rest.
-REST_SPEED = 1e-9
 #: A robot at rest (to this per-axis speed, m/s) this close (m) to its goal holds without a
 #: solve: the optimum there is to stay.
 PARKED_SPEED = 1e-6
 PARKED_DISTANCE = 1e-3
 #: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
 PLAN_MATCH = 1e-6
-#: How far ahead (samples) the progress search along the reference looks.
-PROGRESS_WINDOW = 8
-#: The cost options: the 1-norm MILP, or that MILP's regions refined by the paper's quadratic cost.
-COSTS = ("l1", "quadratic")
 
 
 class MPCController(Controller):
@@ -87,12 +74,8 @@ class MPCController(Controller):
     interpolated at each step's time), one of which must hold over each group of steps
     (`separation`). The margin is soft (a heavy cost), contact is not. With
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
-    on a tie, the smaller robot id) wherever they can come within reach, and of the robots it
-    outranks only when they are parked for the whole horizon or close (closer than two robots
-    at full speed need to stop, plus a step each); a close one may carry on or stop to let it
-    pass, so it keeps clear of the box round both. The higher one thus keeps its course, and
-    the lower one has a plan to avoid that does not move away as it yields (when both yield,
-    both swerve alike and meet again: measured head-on). At most ``max_neighbours`` robots,
+    on a tie, the smaller robot id), and of the robots it outranks only when they are parked
+    for the whole horizon or close (`neighbours` says why). At most ``max_neighbours`` robots,
     the nearest, are constrained.
 
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
@@ -151,53 +134,21 @@ class MPCController(Controller):
         respect_priority: bool = True,
     ) -> None:
         super().__init__()
-        if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 2:
-            raise ValueError(f"MPCController option horizon = {horizon!r}: must be an integer >= 2")
-        for label, w in (
-            ("q_position", q_position),
-            ("q_velocity", q_velocity),
-            ("r_input", r_input),
-        ):
-            if not _non_negative(w):
-                raise ValueError(f"MPCController option {label} = {w!r}: must be a number >= 0")
-        if isinstance(corridor, bool) or not isinstance(corridor, int) or corridor < 0:
-            raise ValueError(
-                f"MPCController option corridor = {corridor!r}: must be an integer >= 0"
-            )
-        if not _non_negative(time_limit_s) or time_limit_s == 0:
-            raise ValueError(
-                f"MPCController option time_limit_s = {time_limit_s!r}: must be a number > 0"
-            )
-        for label, flag in (
-            ("warm_start", warm_start),
-            ("avoid_robots", avoid_robots),
-            ("respect_priority", respect_priority),
-        ):
-            if not isinstance(flag, bool):
-                raise ValueError(f"MPCController option {label} = {flag!r}: must be a bool")
-        if not _non_negative(separation_margin_m):
-            raise ValueError(
-                f"MPCController option separation_margin_m = {separation_margin_m!r}: "
-                "must be a number >= 0"
-            )
-        if (
-            isinstance(max_neighbours, bool)
-            or not isinstance(max_neighbours, int)
-            or max_neighbours < 0
-        ):
-            raise ValueError(
-                f"MPCController option max_neighbours = {max_neighbours!r}: must be an integer >= 0"
-            )
-        try:
-            self.interface = Interface(interface)
-        except ValueError:
-            allowed = ", ".join(repr(i.value) for i in Interface)
-            raise ValueError(
-                f"MPCController option interface = {interface!r}: must be one of {allowed}"
-            ) from None
-        if cost not in COSTS:
-            allowed = ", ".join(repr(c) for c in COSTS)
-            raise ValueError(f"MPCController option cost = {cost!r}: must be one of {allowed}")
+        self.interface = check_options(
+            horizon=horizon,
+            q_position=q_position,
+            q_velocity=q_velocity,
+            r_input=r_input,
+            corridor=corridor,
+            time_limit_s=time_limit_s,
+            warm_start=warm_start,
+            interface=interface,
+            cost=cost,
+            avoid_robots=avoid_robots,
+            separation_margin_m=separation_margin_m,
+            max_neighbours=max_neighbours,
+            respect_priority=respect_priority,
+        )
         self.cost = cost
         self.horizon = horizon
         self.weights = (float(q_position), float(q_velocity), float(r_input))
@@ -223,23 +174,7 @@ class MPCController(Controller):
     def reset(self, context: ControllerContext) -> None:
         """Keep the context; check the horizon against the robot and the cap look-ahead."""
         super().reset(context)
-        spec = context.spec
-        span = self.horizon * spec.period
-        stop = spec.v_max / spec.a_max
-        if span < stop - 1e-9:
-            # Every plan ends at rest: a horizon shorter than braking from full speed never
-            # lets the robot reach it, and a much shorter one never lets it start.
-            raise ValueError(
-                f"MPCController horizon {self.horizon} x period {spec.period:g} s = {span:g} s "
-                f"is shorter than braking from full speed ({spec.v_max:g} / {spec.a_max:g} = "
-                f"{stop:g} s); use horizon >= {math.ceil(stop / spec.period - 1e-9)}"
-            )
-        if span > CAP_LOOKAHEAD_S:
-            raise ValueError(
-                f"MPCController horizon {self.horizon} x period {context.spec.period:g} s = "
-                f"{span:g} s reaches past the {CAP_LOOKAHEAD_S:g} s of print caps an "
-                "observation carries; shorten the horizon"
-            )
+        check_horizon(self.horizon, context.spec)
         self._clear()
 
     def _clear(self) -> None:
@@ -270,7 +205,7 @@ class MPCController(Controller):
         spec = self.context.spec
         if obs.goal is None:
             self._goal = self._trip = self._model = self._last = None
-            return self._brake(obs, ControlStatus.IDLE)
+            return brake(obs, spec, self.horizon, ControlStatus.IDLE)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
         if self._parked(obs, goal):
             # At rest on the goal the optimum is to stay: skip the solve. Others see a robot
@@ -281,7 +216,7 @@ class MPCController(Controller):
             plan = ((obs.t, obs.x, obs.y), (end, obs.x + dt * obs.vx, obs.y + dt * obs.vy))
             return Command(-obs.vx / dt + 0.0, -obs.vy / dt + 0.0, ControlStatus.OK, plan)
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
-            return self._brake(obs, ControlStatus.FALLBACK)
+            return brake(obs, spec, self.horizon, ControlStatus.FALLBACK)
         assert self._trip is not None and self._model is not None
         data, warm = self._step_data(obs)
         separation = self._separation(obs, data)
@@ -321,23 +256,16 @@ class MPCController(Controller):
         return all(math.hypot(n.x - obs.x, n.y - obs.y) > r + n.radius for n in obs.neighbours)
 
     def _refine(self, milp: Solution, data: StepData, separation: Separation | None) -> Solution:
-        """The paper's quadratic cost for the MILP's regions; the MILP's plan if that fails.
-
-        With other robots about, the sides of their squares the MILP chose are fixed too: each
-        is a bound on one coordinate of one point, so the QP keeps clear of them as well.
-        """
-        assert milp.regions is not None
+        """The paper's quadratic cost for the MILP's regions; the MILP's plan if that fails."""
         spec = self.context.spec
-        if separation is not None and milp.separation is not None:
-            p_lo, p_hi = separation.bounds(milp.separation, data.p_lo, data.p_hi)
-            data = StepData(p_lo, p_hi, data.v_lo, data.v_hi, data.z_ub, data.p_ref, data.v_ref)
         if self._qp_highs is None:
             self._qp_highs = new_highs()  # its own object: each refinement replaces its model
         assert self._trip is not None
-        qp = refine_quadratic(
+        solution, optimal = refine_milp(
+            milp,
             self._trip,
             data,
-            milp.regions,
+            separation,
             N=self.horizon,
             dt=spec.period,
             a_max=spec.a_max,
@@ -346,21 +274,9 @@ class MPCController(Controller):
             time_limit_s=self.time_limit_s,
             highs=self._qp_highs,
         )
-        if qp.outcome is not SolverOutcome.OPTIMAL:
+        if not optimal:
             self.qp_failures += 1
-            milp.solver_s += qp.solver_s
-            return milp
-        # The report keeps the MILP's outcome (the command comes from a usable plan either way)
-        # and counts both solves' time.
-        return Solution(
-            milp.outcome,
-            milp.solver_s + qp.solver_s,
-            p=qp.p,
-            v=qp.v,
-            u=qp.u,
-            regions=milp.regions,
-            separation=milp.separation,
-        )
+        return solution
 
     def _new_trip(self, obs: Observation, goal: tuple[float, float]) -> bool:
         """Plan a reference from here to `goal` and build its model; False if there is no path."""
@@ -395,79 +311,23 @@ class MPCController(Controller):
     ) -> tuple[StepData, np.ndarray | None]:
         """Bounds, corridor and reference window for this tick (and a warm start, if any).
 
-        `wide` opens every step's corridor back to the robot's own progress, for when the plan
-        cannot keep pace with the reference window (the retry after an infeasible solve).
+        `wide` opens every step's corridor back to the robot's own progress (`horizon`).
         """
-        spec = self.context.spec
         trip, model = self._trip, self._model
         assert trip is not None and model is not None
-        N, dt, a = self.horizon, spec.period, spec.a_max
-        ref = trip.reference
-        last_index = ref.steps
-        p0 = np.array([obs.x, obs.y])
-        v0 = np.array([obs.vx, obs.vy])
-
-        # Speed bounds per step: robot limit and print caps, never below what braking at full
-        # deceleration reaches (a cap that starts too soon is then missed by the least possible,
-        # instead of making the problem infeasible).
-        caps = CapSchedule(obs.speed_caps).step_caps(obs.t, dt, N + 1)
-        bound = np.minimum(spec.v_max, caps)[:, None].repeat(2, axis=1)
-        bound[N] = 0.0  # end at rest
-        braking = np.abs(v0)[None, :] - np.arange(N + 1)[:, None] * a * dt
-        bound = np.maximum(bound, braking)
-        p_lo, p_hi = reach_boxes(p0, v0, bound, dt, a)
-        xlo, ylo, xhi, yhi = trip.box
-        p_lo[1:] = np.maximum(p_lo[1:], [xlo, ylo])
-        p_hi[1:] = np.minimum(p_hi[1:], [xhi, yhi])
-        p_hi[1:] = np.maximum(p_hi[1:], p_lo[1:])  # empty box: leave it to HiGHS to say so
-        v_lo, v_hi = -bound.copy(), bound.copy()
-        v_lo[0] = v_hi[0] = v0
-
-        # Where along the reference: on time, the timed sample; behind, just past the progress.
-        self._progress = int(trip.progress(p0[None, :], self._progress, PROGRESS_WINDOW)[0])
-        timed = ref.index(obs.t)
-        base = min(max(timed, self._progress), self._progress + 1)
-        p_ref, v_ref, at = _reference_window(ref, base, np.minimum(spec.v_max, caps), dt)
-        # The chord each step's reference starts on, and the last chord it reaches: step k
-        # runs along the reference from at[k] to at[k+1].
-        chord = np.minimum(np.floor(at).astype(int), last_index)
-        chord_end = np.maximum(np.ceil(at[1:]).astype(int) - 1, chord[:-1])
-
-        # Corridor: chords around both where the reference is and where the last plan expected
-        # the robot to be, plus the region the last plan used (so the shifted plan stays open).
-        # (The last plan's regions are positions in its own trip's S: only reuse them there.)
+        # The last plan's regions are positions in its own trip's S: only reuse them there.
         on_plan = self._on_plan(obs) and self._last_model is model
-        expected = chord
-        if on_plan:
-            assert self._last is not None and self._last.p is not None
-            shifted = np.vstack([self._last.p[1:], self._last.p[-1:]])
-            expected = trip.progress(shifted, self._progress, N + PROGRESS_WINDOW)
-        z_ub = np.zeros((N - 1, len(trip.regions)))
-        w = self.corridor
-        for k in range(1, N):
-            lo = min(expected[k], chord[k]) - w
-            if wide:
-                lo = min(lo, self._progress - w)
-            hi = max(expected[k + 1], chord_end[k]) + w
-            allowed = set(trip.corridor(lo, hi))
-            if on_plan:
-                assert self._last is not None and self._last.regions is not None
-                allowed.add(int(self._last.regions[min(k, N - 2)]))
-            for j in allowed:
-                z_ub[k - 1, j] = 1.0
-            # Keep only regions whose box meets where the step can be.
-            lo_box = np.minimum(p_lo[k], p_lo[k + 1])
-            hi_box = np.maximum(p_hi[k], p_hi[k + 1])
-            rb = trip.region_boxes
-            outside = (
-                (rb[:, 0] > hi_box[0] + 1e-9)
-                | (rb[:, 2] < lo_box[0] - 1e-9)
-                | (rb[:, 1] > hi_box[1] + 1e-9)
-                | (rb[:, 3] < lo_box[1] - 1e-9)
-            )
-            z_ub[k - 1, outside] = 0.0
-        data = StepData(p_lo, p_hi, v_lo, v_hi, z_ub, p_ref, v_ref)
-        self.binaries.append(int(z_ub.sum()))
+        data, self._progress = step_data(
+            obs,
+            self.context.spec,
+            trip,
+            horizon=self.horizon,
+            corridor=self.corridor,
+            progress=self._progress,
+            last=self._last if on_plan else None,
+            wide=wide,
+        )
+        self.binaries.append(int(data.z_ub.sum()))
         warm = None
         if self.warm_start and on_plan:
             assert self._last is not None
@@ -476,87 +336,33 @@ class MPCController(Controller):
 
     # -- other robots ---------------------------------------------------------------------------
     def _separation(self, obs: Observation, data: StepData) -> Separation | None:
-        """The rows keeping this solve's plan clear of the robots that need it (None: none).
-
-        A robot needs it when its square can come within reach of the plan (the reachable
-        boxes, narrowed to the regions each step may use) and, with `respect_priority`, it
-        outranks this one or is parked or close (see the class). The nearest `max_neighbours`
-        of those are kept.
-        """
+        """The rows keeping this solve's plan clear of the robots that need it (None: none):
+        the nearest `max_neighbours` of those `neighbours.robots_to_avoid` finds."""
         if not self.avoid_robots or not obs.neighbours or self.max_neighbours == 0:
             self.separation_binaries.append(0)
             self.separation_robots.append(())
             return None
         spec = self.context.spec
-        N, dt = self.horizon, spec.period
-        p_lo, p_hi = self._region_bounds(data)
-        # Within this, two robots at full speed could not stop before they met.
-        near = spec.v_max**2 / spec.a_max + 2.0 * spec.v_max * dt
-        margin = self.separation_margin_m
-        picked: list[tuple[float, str, Obstacle]] = []
-        for n in obs.neighbours:
-            centres = predict(n, obs.t, dt, N)
-            half = spec.radius + float(n.radius) + margin
-            distance = math.hypot(n.x - obs.x, n.y - obs.y)
-            ob = Obstacle.square(n.robot, centres, half, margin)
-            if self.respect_priority and _outranks(obs, n) and not at_rest(centres):
-                if distance >= half + near:
-                    continue  # it yields to this robot; this one keeps its course
-                # Close by: it may carry on with its plan or stop to let this one pass (it
-                # changes its plan as this one's changes): keep clear of both.
-                stop = np.array(_braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))
-                stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
-                ob = Obstacle.between(n.robot, centres, stop, half, margin)
-            if not reaches(ob, p_lo, p_hi):
-                continue
-            picked.append((distance, n.robot, ob))
-        picked.sort(key=lambda item: (item[0], item[1]))
-        chosen = tuple(ob for _, _, ob in picked[: self.max_neighbours])
+        assert self._trip is not None
+        p_lo, p_hi = region_bounds(self._trip, self.horizon, data)
+        nearest = robots_to_avoid(
+            obs,
+            spec,
+            self.horizon,
+            p_lo,
+            p_hi,
+            margin=self.separation_margin_m,
+            respect_priority=self.respect_priority,
+        )
+        chosen = tuple(nearest[: self.max_neighbours])
         if not chosen:
             self.separation_binaries.append(0)
             self.separation_robots.append(())
             return None
-        separation = build_separation(chosen, p_lo, p_hi, spans(N, dt))
+        separation = build_separation(chosen, p_lo, p_hi, spans(self.horizon, spec.period))
         self.separation_binaries.append(separation.binaries)
         self.separation_robots.append(tuple(ob.robot for ob in chosen))
         return separation
-
-    def _region_bounds(self, data: StepData) -> tuple[np.ndarray, np.ndarray]:
-        """Where each p[k] can be: the reachable box within the boxes of the regions its
-        steps may use (p[k] lies in the region of step k-1 and of step k)."""
-        assert self._trip is not None
-        boxes = self._trip.region_boxes
-        N = self.horizon
-        allowed = data.z_ub > 0.5  # (N-1, |S|), steps 1..N-1
-        inf = np.inf
-        lo_s = np.where(allowed[:, :, None], boxes[None, :, :2], inf).min(axis=1)  # (N-1, 2)
-        hi_s = np.where(allowed[:, :, None], boxes[None, :, 2:], -inf).max(axis=1)
-        none = ~allowed.any(axis=1)  # no region open (the solve is infeasible): no narrowing
-        lo_s[none], hi_s[none] = -inf, inf
-        lo = np.full((N + 1, 2), -inf)
-        hi = np.full((N + 1, 2), inf)
-        # Point k is an end of steps k-1 and k (for k - 1 >= 1 and k <= N - 1).
-        lo[1:N] = np.maximum(lo[1:N], lo_s)
-        hi[1:N] = np.minimum(hi[1:N], hi_s)
-        lo[2 : N + 1] = np.maximum(lo[2 : N + 1], lo_s)
-        hi[2 : N + 1] = np.minimum(hi[2 : N + 1], hi_s)
-        p_lo = np.maximum(data.p_lo, lo)
-        p_hi = np.minimum(data.p_hi, hi)
-        p_hi = np.maximum(p_hi, p_lo)  # an empty box: left for HiGHS to find infeasible
-        return p_lo, p_hi
-
-    def _clear_of_neighbours(self, obs: Observation, p: np.ndarray) -> bool:
-        """Whether plan `p` (steps 0..N from now) keeps every neighbour's predicted disc out
-        of its own at steps 1..N (a fallback plan is checked before it is followed)."""
-        if not self.avoid_robots:
-            return True
-        spec = self.context.spec
-        for n in obs.neighbours:
-            centres = predict(n, obs.t, spec.period, len(p) - 1)
-            gap = np.hypot(*(p[1:] - centres[1:]).T)
-            if np.any(gap < spec.radius + float(n.radius) - 1e-9):
-                return False
-        return True
 
     def _on_plan(self, obs: Observation) -> bool:
         """Whether the robot is where the last usable plan said it would be now."""
@@ -576,109 +382,15 @@ class MPCController(Controller):
         robots, else braking; then a new trip."""
         on_plan = self._on_plan(obs)
         self._model = None  # plan a new trip next tick
-        if on_plan and obs.neighbours:
+        if on_plan and obs.neighbours and self.avoid_robots:
             assert self._last is not None and self._last.p is not None
             shifted_p = np.vstack([self._last.p[1:], self._last.p[-1:]])
-            on_plan = self._clear_of_neighbours(obs, shifted_p)
+            on_plan = clear_of_neighbours(obs, self.context.spec, shifted_p)
         if on_plan:
-            last = self._last
-            assert last is not None and last.p is not None and last.v is not None
-            assert last.u is not None and last.regions is not None
-            # Move the stored plan one step on, so a run of fallbacks walks down it to rest.
-            shifted = Solution(
-                last.outcome,
-                last.solver_s,
-                p=np.vstack([last.p[1:], last.p[-1:]]),
-                v=np.vstack([last.v[1:], np.zeros((1, 2))]),
-                u=np.vstack([last.u[1:], np.zeros((1, 2))]),
-                regions=np.concatenate([last.regions[1:], last.regions[-1:]]),
-            )
+            assert self._last is not None
+            command, shifted = follow_previous(obs, self._last, self.context.spec.period, report)
             self._last, self._last_t = shifted, obs.t
-            u = last.u[1]
-            dt = self.context.spec.period
-            plan = tuple(
-                (obs.t + k * dt, float(shifted.p[k, 0]), float(shifted.p[k, 1]))
-                for k in range(len(shifted.p))
-            )
-            return Command(float(u[0]), float(u[1]), ControlStatus.FALLBACK, plan, report)
+            return command
         self._last = None
-        cmd = self._brake(obs, ControlStatus.FALLBACK)
+        cmd = brake(obs, self.context.spec, self.horizon, ControlStatus.FALLBACK)
         return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report)
-
-    def _brake(self, obs: Observation, status: ControlStatus) -> Command:
-        """Brake along the line of travel; with other robots about, the braking path is the
-        plan (else they would keep avoiding the last plan, which runs on past the stop)."""
-        if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
-            return Command(0.0, 0.0, status)
-        spec = self.context.spec
-        ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
-        plan: tuple[tuple[float, float, float], ...] = ()
-        if obs.neighbours:
-            plan = _braking_path(
-                obs.t, obs.x, obs.y, obs.vx, obs.vy, spec.period, spec.a_max, self.horizon
-            )
-        return Command(ax, ay, status, plan)
-
-
-def _outranks(obs: Observation, other: Neighbour) -> bool:
-    """Whether the robot of `obs` goes before `other`: higher priority, or on a tie (an engine
-    that sets none) the smaller robot id."""
-    if obs.priority != other.priority:
-        return obs.priority > other.priority
-    return obs.robot < other.robot
-
-
-def _braking_path(
-    t: float, x: float, y: float, vx: float, vy: float, dt: float, a_max: float, steps: int
-) -> tuple[tuple[float, float, float], ...]:
-    """Samples ``(t, x, y)`` of braking along the line of travel until at rest (at most
-    `steps` periods; a neighbour is assumed to brake as hard as this robot can)."""
-    robot = DoubleIntegrator(dt, a_max)
-    out = [(t, x, y)]
-    for k in range(1, steps + 1):
-        ax, ay = brake_input(vx, vy, dt, a_max)
-        x, y, vx, vy = robot.step(x, y, vx, vy, ax, ay)
-        out.append((t + k * dt, x, y))
-        if abs(vx) <= REST_SPEED and abs(vy) <= REST_SPEED:
-            break
-    return tuple(out)
-
-
-def _non_negative(x: object) -> bool:
-    return (
-        not isinstance(x, bool)
-        and isinstance(x, numbers.Real)
-        and math.isfinite(float(x))
-        and float(x) >= 0
-    )
-
-
-def _reference_window(
-    ref: Reference, base: int, speed: np.ndarray, dt: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The reference for horizon steps 0..N, starting at sample `base`, slowed to `speed`.
-
-    Where the reference is faster (per axis) than step k's allowed speed (a print cap), it is
-    retimed: it advances only the fraction ``speed / |v_ref|`` of a sample per step, along the
-    same chords, with its velocity scaled alike. Without caps this is samples ``base + k``.
-    Returns positions and velocities ``(N+1, 2)`` and the fractional sample index of each step.
-    """
-    last = ref.steps
-    pos, vel = ref.positions, ref.velocities
-    n = len(speed)
-    p_ref = np.empty((n, 2))
-    v_ref = np.empty((n, 2))
-    at = np.empty(n)
-    s = float(base)
-    for k in range(n):
-        s = min(s, float(last))
-        i = int(s)
-        frac = s - i
-        fastest = max(abs(vel[i, 0]), abs(vel[i, 1]))
-        scale = 1.0 if fastest <= speed[k] or fastest < 1e-12 else speed[k] / fastest
-        # Along chord i: p[i] + frac * dt * v[i] (the chord is the step p[i] -> p[i+1]).
-        p_ref[k] = pos[i] + frac * dt * vel[i]
-        v_ref[k] = vel[i] * scale
-        at[k] = s
-        s += scale
-    return p_ref, v_ref, at

@@ -40,9 +40,10 @@ import numpy as np
 from fleet.highs import configure, new_highs
 from fleet.plugins import SolverOutcome
 from fleet_plugins.mpc.model import Solution, StepData, run_outcome
+from fleet_plugins.mpc.separation import Separation
 from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
 
-__all__ = ["refine_quadratic", "quadratic_cost"]
+__all__ = ["refine_milp", "refine_quadratic", "quadratic_cost"]
 
 _ROWWISE = int(highspy.MatrixFormat.kRowwise)
 _TRIANGULAR = int(highspy.HessianFormat.kTriangular)
@@ -52,6 +53,60 @@ _INF = highspy.kHighsInf
 _SAME_SPEED = 1e-12
 #: A row no column enters is left out when it holds within this.
 _CONSTANT_TOL = 1e-9
+
+
+def refine_milp(
+    milp: Solution,
+    trip: Trip,
+    data: StepData,
+    separation: Separation | None,
+    *,
+    N: int,
+    dt: float,
+    a_max: float,
+    v_robot: float,
+    weights: tuple[float, float, float],
+    time_limit_s: float,
+    highs: highspy.Highs,
+) -> tuple[Solution, bool]:
+    """The paper's quadratic cost for the regions of a usable MILP solution, and whether the
+    QP was optimal; if it was not, the MILP's own solution (its time counting both solves).
+
+    With other robots about, the sides of their squares the MILP chose are fixed too: each
+    is a bound on one coordinate of one point, so the QP keeps clear of them as well. The
+    other arguments are `refine_quadratic`'s.
+    """
+    assert milp.regions is not None
+    if separation is not None and milp.separation is not None:
+        p_lo, p_hi = separation.bounds(milp.separation, data.p_lo, data.p_hi)
+        data = StepData(p_lo, p_hi, data.v_lo, data.v_hi, data.z_ub, data.p_ref, data.v_ref)
+    qp = refine_quadratic(
+        trip,
+        data,
+        milp.regions,
+        N=N,
+        dt=dt,
+        a_max=a_max,
+        v_robot=v_robot,
+        weights=weights,
+        time_limit_s=time_limit_s,
+        highs=highs,
+    )
+    if qp.outcome is not SolverOutcome.OPTIMAL:
+        milp.solver_s += qp.solver_s
+        return milp, False
+    # The report keeps the MILP's outcome (the command comes from a usable plan either way)
+    # and counts both solves' time.
+    refined = Solution(
+        milp.outcome,
+        milp.solver_s + qp.solver_s,
+        p=qp.p,
+        v=qp.v,
+        u=qp.u,
+        regions=milp.regions,
+        separation=milp.separation,
+    )
+    return refined, True
 
 
 def refine_quadratic(

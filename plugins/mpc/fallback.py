@@ -1,0 +1,71 @@
+"""When a solve gives no usable plan: the previous plan one step on, or braking.
+
+The previous plan ends at rest inside the regions it was planned in, so a run of fallbacks that
+follow it (`follow_previous`) walks it down to a stop. Otherwise the robot brakes along its
+line of travel (`brake`); with other robots about, the braking path is its plan
+(`braking_path`), so that they avoid where it stops rather than where it was heading.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveReport
+from fleet.plugins.robot import DoubleIntegrator, brake_input
+from fleet_plugins.mpc.model import Solution
+
+__all__ = ["REST_SPEED", "follow_previous", "brake", "braking_path"]
+
+#: Per-axis speed (m/s) below which the robot counts as at rest.
+REST_SPEED = 1e-9
+
+
+def follow_previous(
+    obs: Observation, last: Solution, dt: float, report: SolveReport
+) -> tuple[Command, Solution]:
+    """The previous plan's next input, as a FALLBACK command whose plan is the rest of it;
+    and that plan moved one step on, to be followed again should the next solve fail too."""
+    assert last.p is not None and last.v is not None
+    assert last.u is not None and last.regions is not None
+    shifted = Solution(
+        last.outcome,
+        last.solver_s,
+        p=np.vstack([last.p[1:], last.p[-1:]]),
+        v=np.vstack([last.v[1:], np.zeros((1, 2))]),
+        u=np.vstack([last.u[1:], np.zeros((1, 2))]),
+        regions=np.concatenate([last.regions[1:], last.regions[-1:]]),
+    )
+    u = last.u[1]
+    plan = tuple(
+        (obs.t + k * dt, float(shifted.p[k, 0]), float(shifted.p[k, 1]))
+        for k in range(len(shifted.p))
+    )
+    return Command(float(u[0]), float(u[1]), ControlStatus.FALLBACK, plan, report), shifted
+
+
+def brake(obs: Observation, spec: RobotSpec, horizon: int, status: ControlStatus) -> Command:
+    """Brake along the line of travel; with other robots about, the braking path is the
+    plan (else they would keep avoiding the last plan, which runs on past the stop)."""
+    if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
+        return Command(0.0, 0.0, status)
+    ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
+    plan: tuple[tuple[float, float, float], ...] = ()
+    if obs.neighbours:
+        plan = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, spec.period, spec.a_max, horizon)
+    return Command(ax, ay, status, plan)
+
+
+def braking_path(
+    t: float, x: float, y: float, vx: float, vy: float, dt: float, a_max: float, steps: int
+) -> tuple[tuple[float, float, float], ...]:
+    """Samples ``(t, x, y)`` of braking along the line of travel until at rest (at most
+    `steps` periods; a neighbour is assumed to brake as hard as this robot can)."""
+    robot = DoubleIntegrator(dt, a_max)
+    out = [(t, x, y)]
+    for k in range(1, steps + 1):
+        ax, ay = brake_input(vx, vy, dt, a_max)
+        x, y, vx, vy = robot.step(x, y, vx, vy, ax, ay)
+        out.append((t + k * dt, x, y))
+        if abs(vx) <= REST_SPEED and abs(vy) <= REST_SPEED:
+            break
+    return tuple(out)

@@ -1,0 +1,78 @@
+"""Which other robots a solve keeps clear of, and whether a plan keeps clear of them all.
+
+A robot needs keeping clear of when its predicted square can come within reach of the plan
+(the reachable boxes, narrowed to the regions each step may use) and, with
+``respect_priority``, it outranks this one wherever it is, and only when parked for the whole
+horizon or close (closer than two robots at full speed need to stop, plus a step each) if this
+one outranks it; a close one may carry on or stop to let this one pass, so the plan keeps clear
+of the box round both. The higher one thus keeps its course, and the lower one has a plan to
+avoid that does not move away as it yields (when both yield, both swerve alike and meet again:
+measured head-on). `separation` turns the chosen ones into rows.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fleet.plugins import Neighbour, Observation, RobotSpec
+from fleet_plugins.mpc.fallback import braking_path
+from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
+
+__all__ = ["robots_to_avoid", "clear_of_neighbours", "outranks"]
+
+
+def robots_to_avoid(
+    obs: Observation,
+    spec: RobotSpec,
+    horizon: int,
+    p_lo: np.ndarray,
+    p_hi: np.ndarray,
+    *,
+    margin: float,
+    respect_priority: bool,
+) -> list[Obstacle]:
+    """The robots of `obs.neighbours` the plan must keep clear of, nearest first (on a tie,
+    by robot id); `p_lo`, `p_hi` bound where each point of the plan can be."""
+    N, dt = horizon, spec.period
+    # Within this, two robots at full speed could not stop before they met.
+    near = spec.v_max**2 / spec.a_max + 2.0 * spec.v_max * dt
+    picked: list[tuple[float, str, Obstacle]] = []
+    for n in obs.neighbours:
+        centres = predict(n, obs.t, dt, N)
+        half = spec.radius + float(n.radius) + margin
+        distance = math.hypot(n.x - obs.x, n.y - obs.y)
+        ob = Obstacle.square(n.robot, centres, half, margin)
+        if respect_priority and outranks(obs, n) and not at_rest(centres):
+            if distance >= half + near:
+                continue  # it yields to this robot; this one keeps its course
+            # Close by: it may carry on with its plan or stop to let this one pass (it
+            # changes its plan as this one's changes): keep clear of both.
+            stop = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))
+            stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
+            ob = Obstacle.between(n.robot, centres, stop, half, margin)
+        if not reaches(ob, p_lo, p_hi):
+            continue
+        picked.append((distance, n.robot, ob))
+    picked.sort(key=lambda item: (item[0], item[1]))
+    return [ob for _, _, ob in picked]
+
+
+def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:
+    """Whether plan `p` (steps 0..N from now) keeps every neighbour's predicted disc out
+    of its own at steps 1..N (a fallback plan is checked before it is followed)."""
+    for n in obs.neighbours:
+        centres = predict(n, obs.t, spec.period, len(p) - 1)
+        gap = np.hypot(*(p[1:] - centres[1:]).T)
+        if np.any(gap < spec.radius + float(n.radius) - 1e-9):
+            return False
+    return True
+
+
+def outranks(obs: Observation, other: Neighbour) -> bool:
+    """Whether the robot of `obs` goes before `other`: higher priority, or on a tie (an engine
+    that sets none) the smaller robot id."""
+    if obs.priority != other.priority:
+        return obs.priority > other.priority
+    return obs.robot < other.robot
