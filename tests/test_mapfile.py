@@ -288,7 +288,7 @@ BAD = {
     "negative severity": (
         FLOOR + '[[rough_areas]]\nname = "r"\nrect = [5, 5, 6, 6]\nseverity = -1\n',
         "rough_areas[0] (r).severity",
-        "-1.0",
+        "-1",
         ">= 0",
     ),
     "station outside the floor": (
@@ -371,7 +371,7 @@ BAD = {
     "non-positive margin": (
         FLOOR + MACHINE + '[[zones]]\nname = "z"\naround = "cnc_1"\nmargin = 0\nv_max = 0.4\n',
         "zones[0] (z).margin",
-        "0.0",
+        "0",
         "> 0",
     ),
     "empty name": (

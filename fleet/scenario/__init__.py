@@ -1,8 +1,8 @@
 """Scenario files: which floor, which fleet, which plugins, which jobs, for how long.
 
-`spec` describes the file's structure (``fleet schema scenario`` prints it as JSON Schema),
-`reader` checks a file against it and builds a frozen `Scenario` (re-exported here), and
-`refusal` words what msgspec refused as a `ScenarioError` naming file, field and value.
+`spec` describes the file's structure (``fleet schema scenario`` prints it as JSON Schema) and
+words what it refuses; `reader` checks a file against it and builds a frozen `Scenario`
+(re-exported here).
 This room imports `fleet.errors` and `fleet.printing`; everything downstream reads a `Scenario`,
 never the file.
 """

@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from fleet.errors import ScenarioError
 from fleet.printing import PrintSchedule, PrintTask
-from fleet.scenario.refusal import convert
 from fleet.scenario.spec import (
     LATENCY_RULE,
     JobsTable,
@@ -29,6 +28,7 @@ from fleet.scenario.spec import (
     RobotsTable,
     ScenarioFile,
     ScriptedJobTable,
+    convert,
 )
 
 if TYPE_CHECKING:
