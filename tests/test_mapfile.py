@@ -374,6 +374,19 @@ BAD = {
         "0",
         "> 0",
     ),
+    "floor not a table": ("floor = 3\n", "floor", "3", "write it as [floor]"),
+    "entry name of wrong type": (
+        FLOOR + "[[obstacles]]\nname = 3\nrect = [1, 1, 2, 2]\n",
+        "obstacles[0].name",
+        "3",
+        "must be a string",
+    ),
+    "speed axis that is not a number": (
+        FLOOR + '[[zones]]\nname = "z"\nrect = [1, 1, 2, 2]\nv_max = [0.5, "fast"]\n',
+        "zones[0] (z).v_max",
+        "[0.5, 'fast']",
+        "[vx, vy]",
+    ),
     "empty name": (
         FLOOR + '[[stations]]\nname = " "\nat = [1, 1]\n',
         "stations[0].name",
