@@ -79,7 +79,6 @@ _Latency = Annotated[
     ),
 ]
 
-
 BusAddress = Annotated[
     str,
     Meta(
