@@ -171,6 +171,14 @@ def _parser() -> argparse.ArgumentParser:
         "repeatable, e.g. --map 'Gap fill=contour'",
     )
     gcode.set_defaults(handler=_cmd_gcode)
+
+    schema = sub.add_parser(
+        "schema",
+        help="print the JSON Schema of scenario or map files, for editors (docs/schema.md)",
+    )
+    schema.add_argument("kind", choices=("scenario", "map"), help="which files the schema is of")
+    schema.add_argument("--out", type=Path, help="write the schema to this file instead")
+    schema.set_defaults(handler=_cmd_schema)
     return p
 
 
@@ -603,6 +611,22 @@ def _cmd_gcode(args: argparse.Namespace, console: Console) -> int:
     console.print(first)
     for w in a.warnings:
         Console(stderr=True).print(f"[yellow]warning:[/] {escape(w)}", highlight=False)
+    return 0
+
+
+def _cmd_schema(args: argparse.Namespace, console: Console) -> int:
+    import msgspec
+
+    from fleet.floor import MapFile
+    from fleet.scenario import ScenarioFile
+
+    structure = ScenarioFile if args.kind == "scenario" else MapFile
+    text = msgspec.json.format(msgspec.json.encode(msgspec.json.schema(structure))).decode()
+    if args.out is None:
+        sys.stdout.write(text + "\n")  # plain: no markup or wrapping, so it pipes to a file
+    else:
+        args.out.write_text(text + "\n", encoding="utf-8")
+        console.print(f"wrote the {args.kind} schema to {args.out}", highlight=False)
     return 0
 
 

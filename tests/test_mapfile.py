@@ -288,7 +288,7 @@ BAD = {
     "negative severity": (
         FLOOR + '[[rough_areas]]\nname = "r"\nrect = [5, 5, 6, 6]\nseverity = -1\n',
         "rough_areas[0] (r).severity",
-        "-1.0",
+        "-1",
         ">= 0",
     ),
     "station outside the floor": (
@@ -371,8 +371,21 @@ BAD = {
     "non-positive margin": (
         FLOOR + MACHINE + '[[zones]]\nname = "z"\naround = "cnc_1"\nmargin = 0\nv_max = 0.4\n',
         "zones[0] (z).margin",
-        "0.0",
+        "0",
         "> 0",
+    ),
+    "floor not a table": ("floor = 3\n", "floor", "3", "write it as [floor]"),
+    "entry name of wrong type": (
+        FLOOR + "[[obstacles]]\nname = 3\nrect = [1, 1, 2, 2]\n",
+        "obstacles[0].name",
+        "3",
+        "must be a string",
+    ),
+    "speed axis that is not a number": (
+        FLOOR + '[[zones]]\nname = "z"\nrect = [1, 1, 2, 2]\nv_max = [0.5, "fast"]\n',
+        "zones[0] (z).v_max",
+        "[0.5, 'fast']",
+        "[vx, vy]",
     ),
     "empty name": (
         FLOOR + '[[stations]]\nname = " "\nat = [1, 1]\n',

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from fleet.errors import ScenarioError
-from fleet.scenario import REPO_ROOT, load_scenario
+from fleet.scenario import REPO_ROOT, Scenario, load_scenario, parse_scenario
 
 
 @pytest.fixture
@@ -18,6 +18,15 @@ def write(tmp_path: Path):
         return path
 
     return _write
+
+
+def test_the_file_defaults_are_the_config_defaults(write):
+    # ScenarioFile (what a file may omit) and the frozen Scenario (what code may omit) state
+    # their defaults each; a file that omits everything reads as a Scenario that does.
+    path = write("")
+    assert load_scenario(path) == Scenario(
+        name="s", source=str(path), map=(path.parent / "floor.toml").resolve()
+    )
 
 
 def test_minimal_scenario_gets_defaults(write):
@@ -92,6 +101,18 @@ def test_full_scenario(write):
             "None",
             "is required",
         ),
+        ("[robots]\nv_max = inf\n", "robots.v_max", "inf", "finite number"),
+        ("[print]\ncaps = 'fast'\n", "print.caps", "'fast'", 'or "quality"'),
+        ("[print]\ncaps = 3\n", "print.caps", "3", "must be of type str or dict"),
+        (
+            "[quality]\ntolerance_mm = { infill = 0.1, support = -1 }\n",
+            "quality.tolerance_mm.support",
+            "-1",
+            "positive number",
+        ),
+        ("[jobs]\nstations = ['a', 3]\n", "jobs.stations[1]", "3", "must be of type str"),
+        ("[jobs]\nmax_handbacks = -1\n", "jobs.max_handbacks", "-1", "whole number >= 0"),
+        ("[bus]\ntimeout_s = 2\nlost_after_s = 3\n", "bus.lost_after_s", "3.0", "must not exceed"),
     ],
 )
 def test_bad_values_name_file_field_and_value(write, text, field, value, rule):
@@ -118,6 +139,15 @@ def test_robot_groups_with_their_own_periods(write):
         load_scenario(write("[[robots]]\ncount = 1\n[[robots]]\nperiod_s = 0\n"))
     with pytest.raises(ScenarioError, match=r"robots\[0\].speed = 2"):
         load_scenario(write("[[robots]]\nspeed = 2\n"))
+
+
+def test_a_scenario_checked_for_someone_else_names_their_source(write):
+    # As `fleet.study.sweep` checks a study cell: the file's tables, the cell's values, and
+    # errors that name the cell.
+    path = write("")
+    raw = {"scenario": {"map": "floor.toml"}, "robots": [{"count": 2}, {"count": 0}]}
+    with pytest.raises(ScenarioError, match=r"^study.toml cell 3: robots\[1\].count = 0: "):
+        parse_scenario(raw, path, source="study.toml cell 3")
 
 
 def test_missing_map_file(tmp_path):

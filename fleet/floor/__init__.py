@@ -1,15 +1,21 @@
-"""Floor maps: the map-file format, validation, convex decomposition and the compiled floor."""
+"""Floor maps: the map-file format, validation, convex decomposition and the compiled floor.
+
+`mapspec` describes the map file's structure (``fleet schema map`` prints it as JSON Schema) and
+words what it refuses; `mapfile` checks a file against it and the geometry into a `FloorSpec`.
+"""
 
 from fleet.floor.build import compile_floor, load_floor, slow_on_rough
 from fleet.floor.compiled import Floor, Region, halfspaces
 from fleet.floor.decompose import convex_pieces
 from fleet.floor.mapfile import load_spec, parse_spec
+from fleet.floor.mapspec import MapFile
 from fleet.floor.spec import FloorSpec, Obstacle, RoughArea, SpeedZone, Station
 
 __all__ = [
     "Floor",
     "Region",
     "halfspaces",
+    "MapFile",
     "FloorSpec",
     "Obstacle",
     "RoughArea",

@@ -1,6 +1,8 @@
 """Scenario files: which floor, which fleet, which plugins, which jobs, for how long.
 
-`reader` parses and checks a scenario TOML file into a frozen `Scenario` (re-exported here).
+`spec` describes the file's structure (``fleet schema scenario`` prints it as JSON Schema) and
+words what it refuses; `reader` checks a file against it and builds a frozen `Scenario`
+(re-exported here).
 This room imports `fleet.errors` and `fleet.printing`; everything downstream reads a `Scenario`,
 never the file.
 """
@@ -20,6 +22,7 @@ from fleet.scenario.reader import (
     parse_latency,
     parse_scenario,
 )
+from fleet.scenario.spec import ScenarioFile
 
 __all__ = [
     "RobotsConfig",
@@ -35,4 +38,5 @@ __all__ = [
     "parse_scenario",
     "default_scenario",
     "REPO_ROOT",
+    "ScenarioFile",
 ]

@@ -1,8 +1,11 @@
 """Scenario files: which floor, which fleet, which plugins, which jobs, for how long.
 
-A scenario is a TOML file (see ``scenarios/default.toml``); every key is optional except that a
-map must be known. Unknown keys and bad values raise `ScenarioError` naming the file, the field
-and the value. Command-line options override the file through `Scenario.override`.
+A scenario is a TOML file (see ``scenarios/default.toml``) of the structure
+`fleet.scenario.spec.ScenarioFile` describes; every key is optional except that a map must be
+known. `parse_scenario` converts the file's tables to that structure (msgspec checks types,
+ranges and unknown keys), checks what spans keys or needs the disk, and builds the frozen
+`Scenario` everything downstream reads. Bad values raise `ScenarioError` naming the file, the
+field and the value. Command-line options override the file through `Scenario.override`.
 """
 
 from __future__ import annotations
@@ -14,7 +17,19 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from fleet.errors import ScenarioError
-from fleet.printing import TASK_KINDS, PrintSchedule, PrintTask
+from fleet.printing import PrintSchedule, PrintTask
+from fleet.scenario.spec import (
+    LATENCY_RULE,
+    JobsTable,
+    NonNegativeInt,
+    Positive,
+    PositiveInt,
+    QualityTable,
+    RobotsTable,
+    ScenarioFile,
+    ScriptedJobTable,
+    convert,
+)
 
 if TYPE_CHECKING:
     from fleet.printing.quality import QualityModel
@@ -40,11 +55,6 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 #: Compute latency (`Scenario.latency`): None for none, "measured", or fixed seconds.
 Latency = float | Literal["measured"] | None
-
-_LATENCY_RULE = (
-    'must be "none" (commands apply at once), "measured" (each command waits its '
-    "controller's measured step time) or a number of seconds >= 0 (a fixed latency)"
-)
 
 
 @dataclass(frozen=True)
@@ -231,7 +241,7 @@ class Scenario:
                 raise ScenarioError(src, "--map", str(map), "no such map file")
             out = replace(out, map=path.resolve())
         if robots is not None:
-            count = _positive_int(src, "--robots", robots)
+            count = convert(robots, PositiveInt, src, "--robots")
             if len(out.robots) != 1:
                 raise ScenarioError(
                     src,
@@ -246,9 +256,9 @@ class Scenario:
         if dispatcher is not None:
             out = replace(out, dispatcher=PluginChoice(dispatcher))
         if duration is not None:
-            out = replace(out, duration_s=_positive(src, "--duration", duration))
+            out = replace(out, duration_s=convert(duration, Positive, src, "--duration"))
         if seed is not None:
-            out = replace(out, seed=_seed(src, "--seed", seed))
+            out = replace(out, seed=convert(seed, NonNegativeInt, src, "--seed"))
         if latency is not None:
             out = replace(out, latency=parse_latency(src, "--latency", latency, parse_text=True))
         return out
@@ -281,182 +291,62 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     """
     path = Path(path)
     src = source if source is not None else str(path)
-    root = _Table(src, "", raw)
-    sc = root.table("scenario")
-    name = sc.take("name", str, path.stem)
-    map_value = sc.take("map", str, required=True)
-    map_path = (path.parent / map_value).resolve()
+    file: ScenarioFile = convert(raw, ScenarioFile, src)
+    sc = file.scenario
+    map_path = (path.parent / sc.map).resolve()
     if not map_path.is_file():
-        raise ScenarioError(src, "scenario.map", map_value, f"no such map file ({map_path})")
-    duration = _positive(src, "scenario.duration_s", sc.take("duration_s", (int, float), 600.0))
-    seed = _seed(src, "scenario.seed", sc.take("seed", int, 1))
-    tol = _positive(
-        src, "scenario.arrival_tolerance_m", sc.take("arrival_tolerance_m", (int, float), 0.05)
-    )
-    sensing = _non_negative(
-        src, "scenario.sensing_radius_m", sc.take("sensing_radius_m", (int, float), 0.0)
-    )
-    deadlock = _non_negative(
-        src, "scenario.deadlock_after_s", sc.take("deadlock_after_s", (int, float), 30.0)
-    )
-    latency = parse_latency(src, "scenario.latency", sc.take_any("latency", "none"))
-    sc.finish()
-
-    groups = root.take("robots", (dict, list), {})
-    if isinstance(groups, dict):
-        robots = (_robots(_Table(src, "robots.", groups), src, "robots"),)
-    elif not groups:
-        raise ScenarioError(src, "robots", [], "needs at least one [[robots]] group")
-    else:
-        robots = tuple(
-            _robots(_Table(src, f"robots[{i}].", g), src, f"robots[{i}]")
-            for i, g in enumerate(groups)
-        )
-
-    controller = _plugin(root, "controller", "follower")
-    dispatcher = _plugin(root, "dispatcher", "greedy")
-
-    jb = root.table("jobs")
-    mode = jb.take("mode", str, "poisson")
-    if mode not in ("poisson", "scripted"):
-        raise ScenarioError(src, "jobs.mode", mode, "must be 'poisson' or 'scripted'")
-    rate = _positive(src, "jobs.rate_per_h", jb.take("rate_per_h", (int, float), 60.0))
-    stations = tuple(jb.take_list("stations", str, ()))
-    due_in = jb.take("due_in_s", (int, float), None)
-    if due_in is not None:
-        _positive(src, "jobs.due_in_s", due_in)
-    scripted = []
-    for i, item in enumerate(jb.take_list("scripted", dict, ())):
-        t = _Table(src, f"jobs.scripted[{i}].", item)
-        at = _non_negative(
-            src, f"jobs.scripted[{i}].at_s", t.take("at_s", (int, float), required=True)
-        )
-        station = t.take("station", str, required=True)
-        due = t.take("due_s", (int, float), None)
-        tasks = _print_tasks(src, f"jobs.scripted[{i}].print", t.take_list("print", dict, ()))
-        part = t.take("part", str, None)
-        if part is not None and tasks:
-            raise ScenarioError(
-                src, f"jobs.scripted[{i}].part", part, "give either part or print, not both"
-            )
-        via = tuple(t.take_list("via", str, ()))
-        shuttle = t.take("shuttle", bool, False)
-        if shuttle and not via:
-            raise ScenarioError(
-                src, f"jobs.scripted[{i}].shuttle", shuttle, "shuttle needs via stations"
-            )
-        t.finish()
-        scripted.append(
-            ScriptedJob(
-                float(at),
-                station,
-                None if due is None else float(due),
-                tasks,
-                part,
-                via,
-                shuttle,
-            )
-        )
-    if mode == "scripted" and not scripted:
-        raise ScenarioError(src, "jobs.scripted", [], "mode 'scripted' needs at least one job")
-    job_parts = tuple(jb.take_list("parts", str, ()))
-    handbacks = jb.take("max_handbacks", int, 3)
-    if isinstance(handbacks, bool) or handbacks < 0:
-        raise ScenarioError(src, "jobs.max_handbacks", handbacks, "must be an integer >= 0")
-    jb.finish()
-    jobs = JobsConfig(
-        mode,
-        float(rate),
-        stations,
-        None if due_in is None else float(due_in),
-        tuple(scripted),
-        job_parts,
-        handbacks,
-    )
-
-    parts: dict[str, Path] = {}
-    for part, file in root.take("parts", dict, {}).items():
-        if not isinstance(file, str):
-            raise ScenarioError(src, f"parts.{part}", file, "must be a G-code file name (string)")
-        gcode = (path.parent / file).resolve()
-        if not gcode.is_file():
-            raise ScenarioError(src, f"parts.{part}", file, f"no such G-code file ({gcode})")
-        parts[part] = gcode
-    for i, part in enumerate(job_parts):
-        if part not in parts:
-            raise ScenarioError(src, f"jobs.parts[{i}]", part, _unknown_part(parts))
-    for i, item in enumerate(scripted):
-        if item.part is not None and item.part not in parts:
-            raise ScenarioError(src, f"jobs.scripted[{i}].part", item.part, _unknown_part(parts))
-
-    pr = root.table("print")
-    caps_value = pr.take("caps", (dict, str), {})
-    caps = {}
-    if isinstance(caps_value, str) and caps_value != "quality":
+        raise ScenarioError(src, "scenario.map", sc.map, f"no such map file ({map_path})")
+    groups = [file.robots] if isinstance(file.robots, RobotsTable) else file.robots
+    parts = _parts(src, file.parts, path.parent)
+    jobs = _jobs(src, file.jobs, parts)
+    quality = _quality(src, file.quality, path.parent)
+    caps = file.printing.caps
+    if caps == "quality":
+        caps = {k: c for k, c in quality.model().caps().items() if math.isfinite(c)}
+    bus = file.bus
+    if bus.lost_after_s > bus.timeout_s:
         raise ScenarioError(
             src,
-            "print.caps",
-            caps_value,
-            'must be a table of caps per kind, e.g. { contour = 0.3 }, or "quality" (the '
-            "QSP's fastest speed within each kind's [quality] tolerance)",
+            "bus.lost_after_s",
+            bus.lost_after_s,
+            f"must not exceed bus.timeout_s ({bus.timeout_s:g})",
         )
-    for kind, cap in ({} if isinstance(caps_value, str) else caps_value).items():
-        _check_kind(src, f"print.caps.{kind}", cap, kind)
-        caps[kind] = _positive(src, f"print.caps.{kind}", cap)
-    enforce = pr.take("enforce", bool, True)
-    min_task = _non_negative(src, "print.min_task_s", pr.take("min_task_s", (int, float), 10.0))
-    classify = {}
-    for feature, kind in pr.take("classify", dict, {}).items():
-        _check_kind(src, f"print.classify.{feature}", kind, kind)
-        classify[feature] = kind
-    pr.finish()
-
-    quality = _quality(root.table("quality"), path)
-    if caps_value == "quality":
-        caps = {k: c for k, c in quality.model().caps().items() if math.isfinite(c)}
-    fl = root.table("floor")
-    rough = fl.take("rough_v_max", (int, float), None)
-    if rough is not None:
-        rough = _positive(src, "floor.rough_v_max", rough)
-    fl.finish()
-
-    bus = root.table("bus")
-    address = bus.take("address", str, None)
-    if address is not None and not address.startswith(("inproc://", "ipc://", "tcp://")):
-        raise ScenarioError(
-            src, "bus.address", address, "must start with inproc://, ipc:// or tcp://"
-        )
-    timeout = _positive(src, "bus.timeout_s", bus.take("timeout_s", (int, float), 10.0))
-    lost_after = _positive(src, "bus.lost_after_s", bus.take("lost_after_s", (int, float), 3.0))
-    if lost_after > timeout:
-        raise ScenarioError(
-            src, "bus.lost_after_s", lost_after, f"must not exceed bus.timeout_s ({timeout:g})"
-        )
-    bus.finish()
-    root.finish()
     return Scenario(
-        name=name,
+        name=path.stem if sc.name is None else sc.name,
         source=src,
         map=map_path,
-        duration_s=float(duration),
-        seed=seed,
-        robots=robots,
-        controller=controller,
-        dispatcher=dispatcher,
+        duration_s=sc.duration_s,
+        seed=sc.seed,
+        robots=tuple(
+            RobotsConfig(
+                count=g.count,
+                start=tuple(g.start),
+                v_max=g.v_max,
+                a_max=g.a_max,
+                radius=g.radius,
+                period_s=g.period_s,
+                return_home=g.return_home,
+                turn_radius_m=g.turn_radius_m,
+                turn_settle_s=g.turn_settle_s,
+            )
+            for g in groups
+        ),
+        controller=PluginChoice(file.controller.name, file.controller.options),
+        dispatcher=PluginChoice(file.dispatcher.name, file.dispatcher.options),
         jobs=jobs,
-        bus_address=address,
-        bus=BusConfig(timeout, lost_after),
-        deadlock_after_s=deadlock or None,
-        arrival_tolerance_m=float(tol),
-        sensing_radius_m=float(sensing),
+        bus_address=bus.address,
+        bus=BusConfig(bus.timeout_s, bus.lost_after_s),
+        deadlock_after_s=sc.deadlock_after_s or None,
+        arrival_tolerance_m=sc.arrival_tolerance_m,
+        sensing_radius_m=sc.sensing_radius_m,
         print_caps=caps,
-        enforce_print_caps=enforce,
+        enforce_print_caps=file.printing.enforce,
         parts=parts,
-        min_task_s=float(min_task),
-        classify=classify,
+        min_task_s=file.printing.min_task_s,
+        classify=file.printing.classify,
         quality=quality,
-        rough_v_max=rough,
-        latency=latency,
+        rough_v_max=file.floor.rough_v_max,
+        latency=None if sc.latency == "none" else sc.latency,
     )
 
 
@@ -477,21 +367,83 @@ def parse_latency(src: str, fld: str, value: Any, *, parse_text: bool = False) -
                 number = math.nan
             if math.isfinite(number) and number >= 0:
                 return number
-        raise ScenarioError(src, fld, value, _LATENCY_RULE)
+        raise ScenarioError(src, fld, value, LATENCY_RULE)
     if (
         isinstance(value, bool)
         or not isinstance(value, int | float)
         or not math.isfinite(value)
         or value < 0
     ):
-        raise ScenarioError(src, fld, value, _LATENCY_RULE)
+        raise ScenarioError(src, fld, value, LATENCY_RULE)
     return float(value)
 
 
-def _check_kind(src: str, fld: str, value: Any, kind: str) -> None:
-    """`kind` must be a task kind; `value` is what the file wrote at `fld`."""
-    if kind not in TASK_KINDS:
-        raise ScenarioError(src, fld, value, f"unknown task kind (known: {', '.join(TASK_KINDS)})")
+def _parts(src: str, files: dict[str, str], folder: Path) -> dict[str, Path]:
+    """The ``[parts]`` G-code files, which must exist."""
+    parts = {}
+    for part, file in files.items():
+        gcode = (folder / file).resolve()
+        if not gcode.is_file():
+            raise ScenarioError(src, f"parts.{part}", file, f"no such G-code file ({gcode})")
+        parts[part] = gcode
+    return parts
+
+
+def _jobs(src: str, jobs: JobsTable, parts: dict[str, Path]) -> JobsConfig:
+    """``[jobs]``, whose scripted jobs and parts must make sense together."""
+    scripted = tuple(_scripted_job(src, i, job) for i, job in enumerate(jobs.scripted))
+    if jobs.mode == "scripted" and not scripted:
+        raise ScenarioError(src, "jobs.scripted", [], "mode 'scripted' needs at least one job")
+    for i, part in enumerate(jobs.parts):
+        if part not in parts:
+            raise ScenarioError(src, f"jobs.parts[{i}]", part, _unknown_part(parts))
+    for i, job in enumerate(scripted):
+        if job.part is not None and job.part not in parts:
+            raise ScenarioError(src, f"jobs.scripted[{i}].part", job.part, _unknown_part(parts))
+    return JobsConfig(
+        mode=jobs.mode,
+        rate_per_h=jobs.rate_per_h,
+        stations=tuple(jobs.stations),
+        due_in_s=jobs.due_in_s,
+        scripted=scripted,
+        parts=tuple(jobs.parts),
+        max_handbacks=jobs.max_handbacks,
+    )
+
+
+def _scripted_job(src: str, i: int, job: ScriptedJobTable) -> ScriptedJob:
+    where = f"jobs.scripted[{i}]"
+    if job.part is not None and job.tasks:
+        raise ScenarioError(src, f"{where}.part", job.part, "give either part or print, not both")
+    if job.shuttle and not job.via:
+        raise ScenarioError(src, f"{where}.shuttle", job.shuttle, "shuttle needs via stations")
+    tasks: list[PrintTask] = []
+    for k, task in enumerate(job.tasks):
+        if task.end_s <= task.start_s:
+            raise ScenarioError(
+                src,
+                f"{where}.print[{k}].end_s",
+                task.end_s,
+                f"must be after start_s ({task.start_s:g})",
+            )
+        if tasks and task.start_s < tasks[-1].end_s:
+            raise ScenarioError(
+                src,
+                f"{where}.print[{k}].start_s",
+                task.start_s,
+                f"tasks must be in order and not overlap (the previous one ends at "
+                f"{tasks[-1].end_s:g} s)",
+            )
+        tasks.append(PrintTask(task.kind, task.start_s, task.end_s))
+    return ScriptedJob(
+        at_s=job.at_s,
+        station=job.station,
+        due_s=job.due_s,
+        tasks=tuple(tasks),
+        part=job.part,
+        via=tuple(job.via),
+        shuttle=job.shuttle,
+    )
 
 
 def _unknown_part(parts: dict[str, Path]) -> str:
@@ -499,180 +451,20 @@ def _unknown_part(parts: dict[str, Path]) -> str:
     return f"no such part in [parts] (known: {known})"
 
 
-def _quality(q: _Table, path: Path) -> QualityConfig:
-    src = q.source
-    calibration = q.take("calibration", str, None)
-    cal_path = None
-    if calibration is not None:
-        cal_path = (path.parent / calibration).resolve()
-        if not cal_path.is_file():
+def _quality(src: str, quality: QualityTable, folder: Path) -> QualityConfig:
+    """``[quality]``, whose calibration file must exist."""
+    calibration = None
+    if quality.calibration is not None:
+        calibration = (folder / quality.calibration).resolve()
+        if not calibration.is_file():
             raise ScenarioError(
-                src, "quality.calibration", calibration, f"no such CSV file ({cal_path})"
+                src, "quality.calibration", quality.calibration, f"no such CSV file ({calibration})"
             )
-    tol = q.take("tolerance_mm", (int, float, dict), 0.05)
-    default_tol, per_kind = 0.05, {}
-    if isinstance(tol, dict):
-        for kind, value in tol.items():
-            _check_kind(src, f"quality.tolerance_mm.{kind}", value, kind)
-            per_kind[kind] = _positive(src, f"quality.tolerance_mm.{kind}", value)
-    else:
-        default_tol = _positive(src, "quality.tolerance_mm", tol)
-    metric = q.take("speed_metric", str, "mean")
-    if metric not in ("mean", "max"):
-        raise ScenarioError(src, "quality.speed_metric", metric, "must be 'mean' or 'max'")
-    scope = q.take("scope", str, "task")
-    if scope not in ("task", "print"):
-        raise ScenarioError(src, "quality.scope", scope, "must be 'task' or 'print'")
-    q.finish()
-    return QualityConfig(cal_path, default_tol, per_kind, metric, scope)
-
-
-def _print_tasks(src: str, where: str, items: list[dict]) -> tuple[PrintTask, ...]:
-    """Read ``print = [{kind, start_s, end_s}, ...]``: in order, not overlapping."""
-    tasks: list[PrintTask] = []
-    for i, item in enumerate(items):
-        t = _Table(src, f"{where}[{i}].", item)
-        kind = t.take("kind", str, required=True)
-        _check_kind(src, f"{where}[{i}].kind", kind, kind)
-        start = _non_negative(
-            src, f"{where}[{i}].start_s", t.take("start_s", (int, float), required=True)
-        )
-        end = _positive(src, f"{where}[{i}].end_s", t.take("end_s", (int, float), required=True))
-        t.finish()
-        if end <= start:
-            raise ScenarioError(
-                src, f"{where}[{i}].end_s", end, f"must be after start_s ({start:g})"
-            )
-        if tasks and start < tasks[-1].end_s:
-            raise ScenarioError(
-                src,
-                f"{where}[{i}].start_s",
-                start,
-                f"tasks must be in order and not overlap (the previous one ends at "
-                f"{tasks[-1].end_s:g} s)",
-            )
-        tasks.append(PrintTask(kind, start, end))
-    return tuple(tasks)
-
-
-def _robots(rb: _Table, src: str, where: str) -> RobotsConfig:
-    group = RobotsConfig(
-        count=_positive_int(src, f"{where}.count", rb.take("count", int, 4)),
-        start=tuple(rb.take_list("start", str, ())),
-        v_max=_positive(src, f"{where}.v_max", rb.take("v_max", (int, float), 1.0)),
-        a_max=_positive(src, f"{where}.a_max", rb.take("a_max", (int, float), 0.5)),
-        radius=_positive(src, f"{where}.radius", rb.take("radius", (int, float), 0.4)),
-        period_s=_positive(src, f"{where}.period_s", rb.take("period_s", (int, float), 0.25)),
-        return_home=rb.take("return_home", bool, True),
-        turn_radius_m=_optional_positive(
-            src, f"{where}.turn_radius_m", rb.take("turn_radius_m", (int, float), None)
-        ),
-        turn_settle_s=_non_negative(
-            src, f"{where}.turn_settle_s", rb.take("turn_settle_s", (int, float), 0.0)
-        ),
+    tolerance = quality.tolerance_mm
+    return QualityConfig(
+        calibration=calibration,
+        default_tolerance_mm=0.05 if isinstance(tolerance, dict) else tolerance,
+        tolerance_mm=tolerance if isinstance(tolerance, dict) else {},
+        speed_metric=quality.speed_metric,
+        scope=quality.scope,
     )
-    rb.finish()
-    return group
-
-
-def _plugin(root: _Table, key: str, default: str) -> PluginChoice:
-    t = root.table(key)
-    name = t.take("name", str, default)
-    options = t.take("options", dict, {})
-    t.finish()
-    return PluginChoice(name, dict(options))
-
-
-class _Table:
-    """Reads one TOML table strictly: typed fields, and no key left unread."""
-
-    def __init__(self, source: str, prefix: str, data: Any) -> None:
-        if not isinstance(data, dict):
-            raise ScenarioError(
-                source, prefix.rstrip(".") or "(top level)", data, "must be a table"
-            )
-        self.source, self.prefix, self.data, self.seen = source, prefix, data, set()
-
-    def table(self, key: str) -> _Table:
-        self.seen.add(key)
-        return _Table(self.source, f"{self.prefix}{key}.", self.data.get(key, {}))
-
-    def take(self, key: str, kind: Any, default: Any = None, *, required: bool = False) -> Any:
-        self.seen.add(key)
-        if key not in self.data:
-            if required:
-                raise ScenarioError(self.source, self.prefix + key, None, "is required")
-            return default
-        value = self.data[key]
-        kinds = kind if isinstance(kind, tuple) else (kind,)
-        # bool is an int in Python; never accept true/false for a number.
-        if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
-            names = " or ".join(k.__name__ for k in kinds)
-            raise ScenarioError(self.source, self.prefix + key, value, f"must be of type {names}")
-        return value
-
-    def take_any(self, key: str, default: Any) -> Any:
-        """The value at `key` whatever its type (the caller checks it), or `default`."""
-        self.seen.add(key)
-        return self.data.get(key, default)
-
-    def take_list(self, key: str, kind: Any, default: Any) -> Any:
-        value = self.take(key, list, default)
-        for i, item in enumerate(value):
-            if not isinstance(item, kind):
-                raise ScenarioError(
-                    self.source,
-                    f"{self.prefix}{key}[{i}]",
-                    item,
-                    f"must be of type {kind.__name__}",
-                )
-        return value
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self.seen)
-        if unknown:
-            allowed = ", ".join(sorted(self.seen))
-            raise ScenarioError(
-                self.source,
-                self.prefix + unknown[0],
-                self.data[unknown[0]],
-                f"unknown key (allowed here: {allowed})",
-            )
-
-
-def _positive(src: str, fld: str, value: Any) -> float:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value <= 0
-    ):
-        raise ScenarioError(src, fld, value, "must be a positive number")
-    return float(value)
-
-
-def _optional_positive(src: str, fld: str, value: Any) -> float | None:
-    return None if value is None else _positive(src, fld, value)
-
-
-def _non_negative(src: str, fld: str, value: Any) -> float:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value < 0
-    ):
-        raise ScenarioError(src, fld, value, "must be a number >= 0")
-    return float(value)
-
-
-def _positive_int(src: str, fld: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ScenarioError(src, fld, value, "must be a positive whole number")
-    return value
-
-
-def _seed(src: str, fld: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ScenarioError(src, fld, value, "must be a whole number >= 0")
-    return value
