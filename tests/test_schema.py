@@ -1,9 +1,10 @@
 """`fleet schema`: the JSON Schema of scenario and map files describes every file we ship.
 
-The `jsonschema` package is not a dependency, so the printed schema is not run as a validator
-here. Instead: msgspec accepts every shipped file against the structure the schema is printed
-from, and the printed schema names every key those files use, at every level, with the help an
-editor shows.
+A real JSON Schema validator (`jsonschema`, Draft 2020-12, what msgspec writes) accepts every
+shipped file against the printed schema and refuses files with unknown keys or values out of
+range, as an editor would; msgspec accepts every shipped file against the structure the schema
+is printed from; and the printed schema names every key those files use, at every level, with
+the help an editor shows.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import msgspec
 import pytest
 
@@ -66,6 +68,26 @@ def test_the_schema_describes_every_shipped_file(kind, capsys):
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
         msgspec.convert(raw, structure)  # the structure accepts the file as written
         assert unnamed_keys(schema, schema, raw, path.name) == []
+
+
+@pytest.mark.parametrize("kind", list(FILES))
+def test_a_json_schema_validator_accepts_every_shipped_file(kind, capsys):
+    schema = printed_schema(kind, capsys)
+    jsonschema.Draft202012Validator.check_schema(schema)
+    validator = jsonschema.Draft202012Validator(schema)
+    for path in FILES[kind][1]:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        assert [e.message for e in validator.iter_errors(raw)] == [], path.name
+
+
+def test_a_json_schema_validator_refuses_what_fleet_refuses(capsys):
+    validator = jsonschema.Draft202012Validator(printed_schema("scenario", capsys))
+    base = tomllib.loads((REPO_ROOT / "scenarios" / "default.toml").read_text(encoding="utf-8"))
+    assert validator.is_valid(base)
+    assert not validator.is_valid({**base, "robotz": {"count": 2}})  # unknown key
+    robots = base["robots"] if isinstance(base["robots"], dict) else base["robots"][0]
+    assert not validator.is_valid({**base, "robots": {**robots, "period_s": 0}})  # out of range
+    assert not validator.is_valid({**base, "robots": {**robots, "count": "two"}})  # wrong type
 
 
 def test_the_schema_carries_the_help_and_ranges_an_editor_shows(capsys):
