@@ -6,7 +6,8 @@ import every room below it (floor, paths, printing, scenario, plugins, bus), nev
 """
 
 from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.motion import RobotState
 from fleet.engine.recorder import Recorder
-from fleet.engine.world import RobotState, RunResult, World
+from fleet.engine.world import RunResult, World
 
 __all__ = ["World", "RobotState", "RunResult", "JobRecord", "JobSource", "Recorder"]
