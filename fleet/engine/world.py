@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import networkx as nx
 import numpy as np
 import simpy
 
@@ -37,6 +36,7 @@ from fleet.engine.agents import (
 )
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.motion import EFFECT_EPS_S, RobotState, Turning, at_rest_near, build_robots
+from fleet.engine.placement import Placement
 from fleet.engine.recorder import Recorder
 from fleet.engine.safety import SafetyChecker, SafetyReport
 from fleet.errors import (
@@ -65,7 +65,7 @@ from fleet.plugins import (
 )
 from fleet.plugins.robot import brake_input
 from fleet.printing import CapSchedule, PrintSchedule, PrintTask
-from fleet.scenario import Latency, Scenario, ScriptedJob, parse_latency
+from fleet.scenario import Latency, Scenario, parse_latency
 
 if TYPE_CHECKING:
     from fleet.printing.quality import QualityModel
@@ -135,12 +135,8 @@ class World:
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
         self._planners: dict[tuple[float, float], PathPlanner] = {}
-        self._components = {
-            region: n
-            for n, members in enumerate(nx.connected_components(self.floor.graph))
-            for region in members
-        }
-        homes = self._start_positions()
+        placement = Placement(scenario, self.floor)
+        homes = placement.start_positions()
         self.robots = build_robots(scenario, homes)
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
@@ -148,7 +144,7 @@ class World:
         self.turning = Turning(self.env, self.recorder, self.planner_for)
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
-        self._check_reachable(homes)
+        placement.check_reachable(homes, self.job_source.stations)
         #: Each part's print tasks, analysed from its G-code once per run.
         self.part_tasks = self._analyse_parts()
         self.quality = _quality_model(scenario)
@@ -275,115 +271,6 @@ class World:
         if key not in self._planners:
             self._planners[key] = PathPlanner(self.floor, v_max=spec.v_max, a_max=spec.a_max)
         return self._planners[key]
-
-    def _start_positions(self) -> list[tuple[float, float]]:
-        """Distinct start positions around each group's start stations (cycled), clear of each
-        other, in robot order."""
-        stations = self.floor.stations
-        depots = [s.name for s in self.floor.spec.stations if s.kind == "depot"]
-        spacing = 2.0 * max(g.radius for g in self.scenario.robots) + 0.2
-        components = self._components
-        taken: dict[tuple[int, int], list[tuple[float, float]]] = defaultdict(list)
-        spots: dict[str, Any] = {}
-        out: list[tuple[float, float]] = []
-        for g, group in enumerate(self.scenario.robots):
-            where = "robots" if len(self.scenario.robots) == 1 else f"robots[{g}]"
-            for i, name in enumerate(group.start):
-                if name not in stations:
-                    raise ScenarioError(
-                        self.scenario.source,
-                        f"{where}.start[{i}]",
-                        name,
-                        f"no such station on {self.floor.source} "
-                        f"(known: {', '.join(sorted(stations))})",
-                    )
-            names = list(group.start) or depots or [self.floor.spec.stations[0].name]
-            for i in range(group.count):
-                name = names[i % len(names)]
-                if name not in spots:
-                    spots[name] = self._spots_around(stations[name], spacing, components)
-                out.append(self._claim(spots[name], taken, spacing, name, where, group.count))
-        return out
-
-    def _check_reachable(self, homes: list[tuple[float, float]]) -> None:
-        """Every job destination must be reachable from every robot's start: a job no robot can
-        reach would sit assigned forever."""
-        starts = {self._components[self.floor.locate(*h)] for h in homes}
-        jobs = self.scenario.jobs
-        if jobs.mode == "scripted":
-            targets = []
-            for i, j in enumerate(jobs.scripted):
-                targets.append((f"jobs.scripted[{i}].station", j.station))
-                targets += [(f"jobs.scripted[{i}].via[{k}]", name) for k, name in enumerate(j.via)]
-                self._check_shuttle(i, j)
-        else:
-            targets = [("jobs.stations", name) for name in self.job_source.stations]
-        for field_name, name in targets:
-            s = self.floor.station(name)
-            part = self._components.get(self.floor.locate(s.x, s.y))
-            if starts != {part}:
-                raise ScenarioError(
-                    self.scenario.source,
-                    field_name,
-                    name,
-                    f"station {name!r} on {self.floor.source} cannot be reached from every "
-                    "robot's start (the floor is split into unconnected parts)",
-                )
-
-    def _check_shuttle(self, i: int, job: ScriptedJob) -> None:
-        """A shuttle needs a print to last for, and two via stations apart, or it never moves."""
-        if not job.shuttle:
-            return
-        src = self.scenario.source
-        if not (job.tasks or job.part):
-            raise ScenarioError(
-                src, f"jobs.scripted[{i}].shuttle", True, "a shuttle needs a part or print"
-            )
-        points = [self.floor.station(name) for name in job.via]
-        apart = 2.0 * self.scenario.arrival_tolerance_m
-        if all(math.hypot(p.x - points[0].x, p.y - points[0].y) <= apart for p in points):
-            raise ScenarioError(
-                src,
-                f"jobs.scripted[{i}].via",
-                list(job.via),
-                "a shuttle needs at least two via stations at different places",
-            )
-
-    def _claim(
-        self, spots, taken, spacing: float, name: str, where: str, count: int
-    ) -> tuple[float, float]:
-        """The next of `spots` at least `spacing` from every spot already taken."""
-        for p in spots:
-            cx, cy = int(p[0] // spacing), int(p[1] // spacing)
-            cells = [(cx + dx, cy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
-            if all(
-                math.hypot(p[0] - q[0], p[1] - q[1]) >= spacing - 1e-9
-                for c in cells
-                for q in taken.get(c, ())
-            ):
-                taken[cx, cy].append(p)
-                return p
-        s = self.floor.station(name)
-        raise ScenarioError(
-            self.scenario.source,
-            f"{where}.count",
-            count,
-            f"no free start position left near {name} ({s.x:g}, {s.y:g}); "
-            "use fewer robots or more start stations",
-        )
-
-    def _spots_around(self, station, spacing: float, components: dict[int, int]):
-        """Free spots on a square grid around `station`, ring by ring, reachable from it."""
-        home = components.get(self.floor.locate(station.x, station.y))
-        for ring in range(0, 60):
-            for dx in range(-ring, ring + 1):
-                for dy in range(-ring, ring + 1):
-                    if max(abs(dx), abs(dy)) != ring:
-                        continue
-                    p = (station.x + dx * spacing, station.y + dy * spacing)
-                    region = self.floor.locate(*p)
-                    if region is not None and components[region] == home:
-                        yield p
 
     # -- processes ------------------------------------------------------------------------------
     def _release_jobs(self):
