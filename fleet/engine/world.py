@@ -17,7 +17,7 @@ import math
 import tempfile
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,10 +35,17 @@ from fleet.engine.agents import (
     scenario_fingerprint,
 )
 from fleet.engine.jobs import JobRecord, JobSource
-from fleet.engine.motion import EFFECT_EPS_S, RobotState, Turning, at_rest_near, build_robots
+from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
 from fleet.engine.placement import Placement
 from fleet.engine.recorder import Recorder
-from fleet.engine.safety import SafetyChecker, SafetyReport
+from fleet.engine.safety import SafetyReport
+from fleet.engine.summary import (
+    cap_rows,
+    check_safety,
+    job_rows,
+    summarise,
+    task_rows,
+)
 from fleet.errors import (
     FleetError,
     GcodeError,
@@ -65,7 +72,7 @@ from fleet.plugins import (
 )
 from fleet.plugins.robot import brake_input
 from fleet.printing import CapSchedule, PrintSchedule, PrintTask
-from fleet.scenario import Latency, Scenario, parse_latency
+from fleet.scenario import Scenario, parse_latency
 
 if TYPE_CHECKING:
     from fleet.printing.quality import QualityModel
@@ -151,13 +158,7 @@ class World:
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
         # Duck-typed dispatchers (not subclassing Dispatcher) are plain assigners.
         self._auction = bool(getattr(self.dispatcher, "announces", False))
-        self.stats: dict[str, int] = defaultdict(int)
-        self.solves: list[SolveReport] = []
 
-        #: Faults seen on the bus: agents lost or gone, robots orphaned, agents that rejoined.
-        self.faults: dict[str, int] = dict.fromkeys(
-            ("agents_lost", "agents_left", "robots_orphaned", "robots_rejoined"), 0
-        )
         self.workers: WorkerPool | None = None
         self.host: AgentHost | None = None
         self._tmpdir: tempfile.TemporaryDirectory | None = None
@@ -339,12 +340,12 @@ class World:
             cmd = commands.get(robot.id)
             from_controller = cmd is not None
             if cmd is None:
-                self.stats["commands_missing"] += 1
+                self.recorder.stats["commands_missing"] += 1
                 ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
                 cmd = Command(ax, ay, ControlStatus.ERROR)
                 robot.plan = robot.thinned_plan = ()  # braking, not following its plan
             elif cmd.status is not ControlStatus.OK:
-                self.stats[f"commands_{cmd.status.value}"] += 1
+                self.recorder.stats[f"commands_{cmd.status.value}"] += 1
             if latency is not None:
                 delay = 0.0  # commands the engine makes itself (brakes) apply at once
                 if from_controller:
@@ -362,10 +363,10 @@ class World:
                 robot.thinned_plan = _thin(cmd.plan, PLAN_SPACING_S)
                 self.recorder.plan(robot.id, t, cmd.plan)
             if cmd.solve is not None:
-                self.solves.append(cmd.solve)
+                self.recorder.solves.append(cmd.solve)
             a = robot.spec.a_max
             if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
-                self.stats["commands_clipped"] += 1
+                self.recorder.stats["commands_clipped"] += 1
             if robot.job is not None and robot.job.started_s is None and obs.goal is not None:
                 robot.job.started_s = t
                 self.recorder.event(t, "started", robot.job.job.id, robot.id, robot.job.job.station)
@@ -391,7 +392,7 @@ class World:
             print_s = rec.tasks[-1].end_s if rec.tasks else 0.0
             out.append(Announcement(jid, job.x, job.y, print_s, job.released_s, job.due_s))
         self._announce.clear()
-        self.stats["announcements"] += len(out)
+        self.recorder.stats["announcements"] += len(out)
         return out
 
     def _after_round(self, t: float, announcements: list[Announcement]) -> None:
@@ -401,7 +402,7 @@ class World:
             robot = self.robots.get(hb.robot)
             rec = next((r for r in self.jobs if r.job.id == hb.job), None)
             if robot is None or rec is None or rec.robot != robot.id:
-                self.stats["handbacks_rejected"] += 1
+                self.recorder.stats["handbacks_rejected"] += 1
                 log.warning(
                     "agent handed back job %s of robot %s, not its own; ignored", hb.job, hb.robot
                 )
@@ -417,7 +418,7 @@ class World:
         t = self.env.now
         robots = [self.robots[r] for r in event.robots if r in self.robots]
         if event.kind in ("lost", "left"):
-            self.faults["agents_lost" if event.kind == "lost" else "agents_left"] += 1
+            self.recorder.faults["agents_lost" if event.kind == "lost" else "agents_left"] += 1
             log.warning(
                 "t = %.2f s: agent %s %s (%s); braking robots %s",
                 t,
@@ -431,7 +432,7 @@ class World:
                     continue
                 robot.faulted = True
                 robot.plan = robot.thinned_plan = ()
-                self.faults["robots_orphaned"] += 1
+                self.recorder.faults["robots_orphaned"] += 1
                 self.recorder.event(t, "fault", "", robot.id, event.agent)
                 for rec in [*robot.queue, *([robot.job] if robot.job else [])]:
                     self._hand_back(robot, rec, f"agent {event.agent} {event.kind}")
@@ -439,7 +440,7 @@ class World:
             for robot in robots:
                 if robot.faulted:
                     robot.faulted = False
-                    self.faults["robots_rejoined"] += 1
+                    self.recorder.faults["robots_rejoined"] += 1
                     self.recorder.event(t, "rejoined", "", robot.id, event.agent)
             self._request_dispatch()
 
@@ -469,7 +470,7 @@ class World:
         rec.handbacks += 1
         if blocked:
             rec.handed_back_by.add(robot.id)
-        self.stats["jobs_handed_back"] += 1
+        self.recorder.stats["jobs_handed_back"] += 1
         self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
         if rec.handbacks > self.scenario.jobs.max_handbacks or rec.handed_back_by >= set(
             self.robots
@@ -569,7 +570,7 @@ class World:
             and math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
         )
         if blockers and not r.blockers:
-            self.stats["deadlocks"] += 1
+            self.recorder.stats["deadlocks"] += 1
             r.boosted_until = t + after
             self.recorder.event(
                 t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(blockers)
@@ -740,7 +741,7 @@ class World:
             and not self.robots[b.robot].faulted
             and not self.robots[b.robot].queue
         ]
-        self.stats["bids"] += len(bids)
+        self.recorder.stats["bids"] += len(bids)
         if not valid:
             return
         wanted = sorted({b.job for b in valid})
@@ -768,8 +769,8 @@ class World:
                 choose([rec.job for rec in open_jobs], self._statuses(exclude), context)
             )
         except Exception:  # a plugin may raise anything; jobs stay open for the next try
-            self.stats["dispatcher_errors"] += 1
-            first = self.stats["dispatcher_errors"] == 1
+            self.recorder.stats["dispatcher_errors"] += 1
+            first = self.recorder.stats["dispatcher_errors"] == 1
             log.log(
                 logging.WARNING if first else logging.DEBUG,
                 "dispatcher %r raised at t = %.3f s; jobs stay open",
@@ -789,12 +790,12 @@ class World:
                 robot.faulted or (robot.job is not None and (not queue or bool(robot.queue)))
             )
             if rec is None or robot is None or busy or a.job in taken_jobs:
-                self.stats["assignments_rejected"] += 1
+                self.recorder.stats["assignments_rejected"] += 1
                 log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
                 continue
             if robot.id in rec.handed_back_by:
                 # It gave this job back as blocked: the job waits for another robot.
-                self.stats["assignments_declined"] += 1
+                self.recorder.stats["assignments_declined"] += 1
                 declined.append((rec, robot.id))
                 continue
             taken_jobs.add(a.job)
@@ -849,117 +850,24 @@ class World:
             yield self.env.timeout(step)
 
     def _summarise(self, wall_time: float) -> RunResult:
-        sc = self.scenario
-        trajectories = {rid: tr.arrays() for rid, tr in self.recorder.trajectories.items()}
-        radii = {rid: r.spec.radius for rid, r in self.robots.items()}
-        # Caps that are only advice (`[print] enforce = false`) are not limits to check.
-        enforced = sc.enforce_print_caps
-        caps = {rid: r.caps() if enforced else CapSchedule() for rid, r in self.robots.items()}
-        safety = SafetyChecker(self.floor).check(trajectories, radii, caps)
+        safety = check_safety(
+            self.floor, self.robots, self.recorder, self.scenario.enforce_print_caps
+        )
         for rec in self.jobs:  # prints that finished but were not delivered by the end
             if rec.print_end_s is not None and rec.print_end_s <= self.env.now + 1e-9:
                 self._judge(rec)
-        completed = [rec for rec in self.jobs if rec.delivered_s is not None]
-        failed = [rec for rec in self.jobs if rec.failed_s is not None]
-        # No job may be lost: every released job is delivered, given up, held by a robot
-        # (current or queued) or open for the dispatcher, and exactly one of these. Counted from
-        # the robots' side, so a job that fell between them shows.
-        held = [rec for r in self.robots.values() for rec in (r.job, *r.queue) if rec is not None]
-        waiting = [rec for rec in self.jobs if rec.open]
-        in_progress = held + waiting
-        states = [id(rec) for rec in (*completed, *failed, *in_progress)]
-        accounted = len(states) == len(set(states)) == len(self.jobs)
-        if not accounted:
-            log.error(
-                "job accounting broken: %d released != %d completed + %d failed + %d in progress",
-                len(self.jobs),
-                len(completed),
-                len(failed),
-                len(in_progress),
-            )
-        good = [rec for rec in completed if rec.quality is None or rec.quality.passed]
-        now = float(self.env.now)
-        late = sum(
-            1
-            for rec in self.jobs
-            if rec.late
-            or (rec.delivered_s is None and rec.job.due_s is not None and now > rec.job.due_s)
+        summary = summarise(
+            self.scenario,
+            self.floor,
+            self.robots,
+            self.jobs,
+            self.recorder,
+            safety,
+            now=float(self.env.now),
+            wall_time_s=wall_time,
+            bus_rounds=self._round,
+            bus_stats=self.exchange.stats,
         )
-        lead = [rec.lead_time_s for rec in completed]
-        per_robot = [
-            {
-                "id": rid,
-                "distance_m": round(self.recorder.trajectories[rid].distance(), 6),
-                "jobs_completed": r.jobs_completed,
-                "turned_rad": round(r.turned_rad, 6),
-                "radius_m": r.spec.radius,
-            }
-            for rid, r in self.robots.items()
-        ]
-        hours = sc.duration_s / 3600.0
-        summary = {
-            "scenario": sc.name,
-            "scenario_file": sc.source,
-            "map": str(self.floor.source),
-            "seed": sc.seed,
-            "controller": sc.controller.name,
-            "dispatcher": sc.dispatcher.name,
-            "robots": len(self.robots),
-            "sim_time_s": float(self.env.now),
-            "wall_time_s": round(wall_time, 3),
-            "jobs": {
-                "released": len(self.jobs),
-                "completed": len(completed),
-                # Given up after too many hand-backs (`[jobs] max_handbacks`), and the rest:
-                # released == completed + failed + in_progress, checked in `accounted`.
-                "failed": len(failed),
-                "in_progress": len(in_progress),
-                "accounted": accounted,
-                "handed_back": sum(rec.handbacks for rec in self.jobs),
-                "assigned_open": sum(
-                    1 for rec in self.jobs if rec.robot and rec.delivered_s is None
-                ),
-                "unassigned": sum(1 for rec in self.jobs if rec.open),
-                # Delivered parts that passed the quality prediction (jobs with nothing to
-                # print count as good), delivered parts that did not, and jobs delivered after
-                # their due time or still out when it passed.
-                "good": len(good),
-                "defective": len(completed) - len(good),
-                "late": late,
-            },
-            "throughput_per_h": round(len(completed) / hours, 6) if hours > 0 else 0.0,
-            "throughput_good_per_h": round(len(good) / hours, 6) if hours > 0 else 0.0,
-            "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
-            "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
-            "violations": dict(safety.counts),
-            "faults": dict(self.faults),
-            "print_caps": {
-                "caps": dict(sorted(sc.print_caps.items())),
-                "enforced": sc.enforce_print_caps,
-            },
-            "quality": self._quality_summary(),
-            "solver": self._solver_summary(),
-            "latency": _latency_summary(sc.latency, self.robots.values()),
-            "per_robot": per_robot,
-            "engine": {
-                "bus_rounds": self._round,
-                "robot_steps": sum(r.tick for r in self.robots.values()),
-                **{k: int(v) for k, v in sorted(self.stats.items())},
-                **{f"bus_{k}": int(v) for k, v in sorted(self.exchange.stats.items())},
-            },
-            "digest": self.recorder.digest(),
-        }
-        if sc.jobs.mode == "scripted":
-            # Point-to-point runs: when each robot reached the destination of its last trip
-            # (a print may keep it there longer); None while a trip it was given is still open.
-            last: dict[str, float | None] = dict.fromkeys(self.robots)
-            arrived = [rec for rec in self.jobs if rec.arrived_s is not None]
-            for rec in arrived:
-                last[rec.robot] = max(last[rec.robot] or 0.0, rec.arrived_s)
-            for rec in self.jobs:
-                if rec.robot is not None and rec.arrived_s is None:
-                    last[rec.robot] = None
-            summary["arrivals"] = last
         return RunResult(summary, safety, list(self.jobs))
 
     def write(self, out: Path) -> None:
@@ -977,127 +885,31 @@ class World:
         )
 
     def task_rows(self) -> list[tuple[str, str, str, float, float]]:
-        """Every print task that started: (robot, job, kind, start_s, end_s) rows on the clock,
-        cut at delivery."""
-        rows = []
-        for rec in self.jobs:
-            if rec.robot is None or rec.print_start_s is None:
-                continue
-            stop = math.inf if rec.delivered_s is None else rec.delivered_s
-            for task in rec.tasks:
-                start = rec.print_start_s + task.start_s
-                end = min(rec.print_start_s + task.end_s, stop)
-                if end > start:
-                    rows.append((rec.robot, rec.job.id, task.kind, start, end))
-        return rows
+        """Every print task that started, as ``tasks.csv`` rows (see `summary.task_rows`)."""
+        return task_rows(self.jobs)
 
     def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
-        """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows."""
-        caps = self.scenario.print_caps
-        return [(*row, caps[row[2]]) for row in self.task_rows() if row[2] in caps]
-
-    def _quality_summary(self) -> dict[str, Any]:
-        """Outcomes of the prints judged so far and the largest predicted error."""
-        judged = [rec.quality for rec in self.jobs if rec.quality is not None]
-        outcomes: dict[str, int] = defaultdict(int)
-        for q in judged:
-            outcomes[q.outcome] += 1
-        return {
-            "prints": len(judged),
-            "outcomes": dict(sorted(outcomes.items())),
-            "max_error_mm": round(max(q.error_mm for q in judged), 6) if judged else None,
-        }
+        """Every print cap a robot was under, as ``caps.csv`` rows (see `summary.cap_rows`)."""
+        return cap_rows(self.jobs, self.scenario.print_caps)
 
     def job_rows(self) -> list[dict[str, Any]]:
-        """One row per job for ``jobs.csv`` (None: not happened, or not printed)."""
-        rows = []
-        for rec in self.jobs:
-            q = rec.quality
-            rows.append(
-                {
-                    "id": rec.job.id,
-                    "part": rec.job.part,
-                    "robot": rec.robot,
-                    "released_s": rec.job.released_s,
-                    "started_s": rec.print_start_s
-                    if rec.print_start_s is not None
-                    else rec.started_s,
-                    "finished_s": rec.print_end_s
-                    if rec.print_end_s is not None and rec.printing_done(self.env.now)
-                    else None,
-                    "delivered_s": rec.delivered_s,
-                    "due_s": rec.job.due_s,
-                    "predicted_error_mm": None if q is None else q.error_mm,
-                    "passed": None if q is None else q.passed,
-                    "outcome": None if q is None else q.outcome,
-                }
-            )
-        return rows
+        """One row per job for ``jobs.csv`` (see `summary.job_rows`)."""
+        return job_rows(self.jobs, self.env.now)
 
-    def _solver_summary(self) -> dict[str, Any]:
-        """Statistics of the `SolveReport`s controllers attached to their commands."""
-        solves = self.solves
-        outcomes: dict[str, int] = defaultdict(int)
-        for s in solves:
-            outcomes[s.outcome.value] += 1
-        out: dict[str, Any] = {
-            "steps": len(solves),
-            "median_ms": None,
-            "p95_ms": None,
-            "max_ms": None,
-            "fallbacks": int(self.stats.get("commands_fallback", 0)),
-            "termination": dict(sorted(outcomes.items())),
-        }
-        if solves:
-            solver = np.array([s.solver_s for s in solves]) * 1e3
-            step = np.array([s.step_s for s in solves]) * 1e3
-            out.update(_spread_ms(solver))
-            out.update(
-                step_median_ms=round(float(np.median(step)), 3),
-                step_p95_ms=round(float(np.percentile(step, 95)), 3),
-                # The modelling layer's overhead: whole controller step over solver time.
-                overhead_ratio=round(float(step.sum() / max(solver.sum(), 1e-12)), 3),
-            )
-        return out
+    @property
+    def stats(self) -> dict[str, int]:
+        """The engine's counters (summary.json's ``engine`` object), kept by the recorder."""
+        return self.recorder.stats
 
+    @property
+    def solves(self) -> list[SolveReport]:
+        """The solve reports controllers attached to their commands, kept by the recorder."""
+        return self.recorder.solves
 
-def _spread_ms(ms: np.ndarray) -> dict[str, float]:
-    """``median_ms``, ``p95_ms`` and ``max_ms`` of times in ms, as summary.json writes them."""
-    return {
-        "median_ms": round(float(np.median(ms)), 3),
-        "p95_ms": round(float(np.percentile(ms, 95)), 3),
-        "max_ms": round(float(ms.max()), 3),
-    }
-
-
-def _latency_summary(mode: Latency, robots: Iterable[RobotState]) -> dict[str, Any]:
-    """The ``latency`` object of summary.json: the mode and, over the controllers' commands
-    that waited (every one with a fixed latency; those with a solve report when measured), how
-    many, the median, p95 and largest latency, and how many were `late` (a latency of at least
-    the robot's period: the command missed its own step); `instant` counts the commands a
-    measured run applied at once (no solve report). The keys are the same in every mode."""
-    robots = list(robots)
-    out: dict[str, Any] = {
-        "mode": "none" if mode is None else "measured" if mode == "measured" else "fixed",
-        "commands": 0,
-        "median_ms": None,
-        "p95_ms": None,
-        "max_ms": None,
-        "late": 0,
-        "instant": sum(r.instant for r in robots),
-    }
-    per_robot = [
-        (np.frombuffer(r.latencies, dtype=float), r.spec.period) for r in robots if r.latencies
-    ]
-    if mode is None or not per_robot:
-        return out
-    ms = np.concatenate([s for s, _ in per_robot]) * 1e3
-    out.update(_spread_ms(ms))
-    out.update(
-        commands=int(ms.size),
-        late=sum(int(np.count_nonzero(s >= period - EFFECT_EPS_S)) for s, period in per_robot),
-    )
-    return out
+    @property
+    def faults(self) -> dict[str, int]:
+        """Faults seen on the bus (agents lost, left, robots orphaned, rejoined)."""
+        return self.recorder.faults
 
 
 def _thin(
