@@ -18,7 +18,6 @@ import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable
-from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,6 +33,7 @@ from fleet.engine.agents import (
     load_run_floor,
     scenario_fingerprint,
 )
+from fleet.engine.dispatch import Dispatch
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
 from fleet.engine.placement import Placement
@@ -58,20 +58,16 @@ from fleet.paths import PathPlanner
 from fleet.plugins import (
     CAP_LOOKAHEAD_S,
     Announcement,
-    Assignment,
-    Bid,
     Command,
     ControlStatus,
-    DispatchContext,
     Neighbour,
     Observation,
     RobotSpec,
-    RobotStatus,
     SolveReport,
     load_dispatcher,
 )
 from fleet.plugins.robot import brake_input
-from fleet.printing import CapSchedule, PrintSchedule, PrintTask
+from fleet.printing import PrintSchedule, PrintTask
 from fleet.scenario import Scenario, parse_latency
 
 if TYPE_CHECKING:
@@ -83,8 +79,6 @@ log = logging.getLogger("fleet.engine")
 
 #: At most this many neighbours (the nearest) go into one observation.
 MAX_NEIGHBOURS = 8
-#: How often (s) open jobs nobody won are announced again (auctions).
-REANNOUNCE_S = 5.0
 #: A robot that got no closer to its goal than this (m) over `Scenario.deadlock_after_s` has
 #: made no progress.
 PROGRESS_M = 0.25
@@ -156,8 +150,16 @@ class World:
         self.part_tasks = self._analyse_parts()
         self.quality = _quality_model(scenario)
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
-        # Duck-typed dispatchers (not subclassing Dispatcher) are plain assigners.
-        self._auction = bool(getattr(self.dispatcher, "announces", False))
+        self.dispatch = Dispatch(
+            self.env,
+            scenario,
+            self.floor,
+            self.planner,
+            self.robots,
+            self.jobs,
+            self.recorder,
+            self.dispatcher,
+        )
 
         self.workers: WorkerPool | None = None
         self.host: AgentHost | None = None
@@ -206,11 +208,6 @@ class World:
         self.result: RunResult | None = None
         self._pending: list[tuple[RobotState, simpy.Event]] = []
         self._round = 0
-        self._dispatch_scheduled = False
-        self._idle_since: dict[str, float] = {}
-        #: Jobs to announce at the next bus round (auctions), and when each was last announced.
-        self._announce: set[str] = set()
-        self._announced_s: dict[str, float] = {}
 
     # -- set-up ---------------------------------------------------------------------------------
     def _wait_for_agents(self, wait_s: float) -> None:
@@ -290,7 +287,7 @@ class World:
             rec = JobRecord(job, tasks=tasks, via=via, shuttle=item is not None and item.shuttle)
             self.jobs.append(rec)
             self.recorder.event(t, "released", job.id, station=job.station)
-            self._request_dispatch()
+            self.dispatch.request()
 
     def _robot(self, robot: RobotState):
         env = self.env
@@ -324,16 +321,15 @@ class World:
         return ev
 
     def _bus_round(self, _event: simpy.Event) -> None:
-        if self._dispatch_scheduled:
-            # A job released (or a robot freed) at this instant is assigned before the robots
-            # observe, so a job released at t starts being served at t, not one period later.
-            self._dispatch(None)
+        # A job released (or a robot freed) at this instant is assigned before the robots
+        # observe, so a job released at t starts being served at t, not one period later.
+        self.dispatch.run_pending()
         pending, self._pending = self._pending, []
         pending.sort(key=lambda p: p[0].id)
         t = self.env.now
         observations = self._observe([r for r, _ in pending], t)
         self._round += 1
-        announcements = self._announcements(t)
+        announcements = self.dispatch.announcements(t)
         commands = self.exchange.round(self._round, t, observations, announcements)
         latency = self.scenario.latency
         for (robot, ev), obs in zip(pending, observations, strict=True):
@@ -373,28 +369,6 @@ class World:
             ev.succeed(cmd)
         self._after_round(t, announcements)
 
-    def _announcements(self, t: float) -> list[Announcement]:
-        """Open jobs to offer in this round: new or handed back ones, and every `REANNOUNCE_S`
-        the ones nobody won."""
-        if not self._auction:
-            return []
-        out = []
-        for rec in self.jobs:
-            jid = rec.job.id
-            if not rec.open:
-                continue
-            if jid not in self._announce and t < self._announced_s.get(jid, -math.inf) + (
-                REANNOUNCE_S - 1e-9
-            ):
-                continue
-            self._announced_s[jid] = t
-            job = rec.job
-            print_s = rec.tasks[-1].end_s if rec.tasks else 0.0
-            out.append(Announcement(jid, job.x, job.y, print_s, job.released_s, job.due_s))
-        self._announce.clear()
-        self.recorder.stats["announcements"] += len(out)
-        return out
-
     def _after_round(self, t: float, announcements: list[Announcement]) -> None:
         """Bids, hand-backs and agents coming and going, as the round brought them."""
         exchange = self.exchange
@@ -407,11 +381,11 @@ class World:
                     "agent handed back job %s of robot %s, not its own; ignored", hb.job, hb.robot
                 )
                 continue
-            self._hand_back(robot, rec, f"handed back: {hb.reason}", blocked=True)
+            self.dispatch.hand_back(robot, rec, f"handed back: {hb.reason}", blocked=True)
         for event in exchange.take_events():
             self._bus_event(event)
         if announcements:
-            self._award(list(exchange.bids))
+            self.dispatch.award(list(exchange.bids))
 
     def _bus_event(self, event: BusEvent) -> None:
         """An agent left, was lost or (re)joined: orphan its robots, or take them back."""
@@ -435,51 +409,14 @@ class World:
                 self.recorder.faults["robots_orphaned"] += 1
                 self.recorder.event(t, "fault", "", robot.id, event.agent)
                 for rec in [*robot.queue, *([robot.job] if robot.job else [])]:
-                    self._hand_back(robot, rec, f"agent {event.agent} {event.kind}")
+                    self.dispatch.hand_back(robot, rec, f"agent {event.agent} {event.kind}")
         elif event.kind == "joined":
             for robot in robots:
                 if robot.faulted:
                     robot.faulted = False
                     self.recorder.faults["robots_rejoined"] += 1
                     self.recorder.event(t, "rejoined", "", robot.id, event.agent)
-            self._request_dispatch()
-
-    def _hand_back(
-        self, robot: RobotState, rec: JobRecord, reason: str, blocked: bool = False
-    ) -> None:
-        """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
-
-        A print under way is lost with the hand-back: the next robot prints the part anew. A
-        robot that gave the job back because it is `blocked` is not given it again (a robot
-        whose agent failed may be, once it is back); when every robot has, the job fails.
-        """
-        t = self.env.now
-        if rec is robot.job:
-            robot.job = robot.queue.pop(0) if robot.queue else None
-        elif rec in robot.queue:
-            robot.queue.remove(rec)
-        else:
-            return
-        # The caps the robot printed under stay on its record for the safety check.
-        robot.past_caps.extend(rec.caps.window(-math.inf, t).pieces)
-        rec.robot = rec.assigned_s = rec.started_s = rec.arrived_s = rec.print_start_s = None
-        rec.caps = CapSchedule()
-        rec.leg = 0
-        rec.turned_rad = 0.0
-        rec.quality = None
-        rec.handbacks += 1
-        if blocked:
-            rec.handed_back_by.add(robot.id)
-        self.recorder.stats["jobs_handed_back"] += 1
-        self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
-        if rec.handbacks > self.scenario.jobs.max_handbacks or rec.handed_back_by >= set(
-            self.robots
-        ):
-            rec.failed_s, rec.failure = t, reason
-            self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
-            log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)
-            return
-        self._request_dispatch()
+            self.dispatch.request()
 
     def _observe(self, robots: list[RobotState], t: float) -> list[Observation]:
         radius = self.scenario.sensing_radius_m
@@ -657,7 +594,7 @@ class World:
         robot.jobs_completed += 1
         robot.job = robot.queue.pop(0) if robot.queue else None
         self.recorder.event(self.env.now, "delivered", rec.job.id, robot.id, rec.job.station)
-        self._request_dispatch()
+        self.dispatch.request()
 
     def _start_print(self, robot: RobotState, t: float) -> None:
         """Start the job's print at the robot's first tick after assignment, or, if it is moving,
@@ -690,123 +627,6 @@ class World:
             strictest = min((k.kind for k in tasks), key=self.quality.tolerance)
             tasks = [PrintTask(strictest, start, end)]
         rec.quality = self.quality.predict(tasks, t, xy, v, self.floor.spec.rough_areas)
-
-    def _request_dispatch(self) -> None:
-        if self._auction:
-            # Contract net: open jobs are announced in the next bus round and awarded from bids.
-            self._announce.update(rec.job.id for rec in self.jobs if rec.open)
-            return
-        if not self._dispatch_scheduled:
-            self._dispatch_scheduled = True
-            self.env.timeout(0).callbacks.append(self._dispatch)
-
-    def _dispatch(self, _event: simpy.Event | None) -> None:
-        if not self._dispatch_scheduled:
-            return  # already run at this instant, before a bus round
-        self._dispatch_scheduled = False
-        open_jobs = [rec for rec in self.jobs if rec.open]
-        idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
-        if not open_jobs or not idle:
-            return
-        exclude: set[str] = set()
-        for _ in range(len(self.robots)):
-            declined = self._apply_assignments(open_jobs, self.dispatcher.assign, exclude=exclude)
-            if not declined:
-                return
-            # Ask again for the jobs given to robots that had handed them back, without those.
-            exclude |= {robot for _, robot in declined}
-            open_jobs = [rec for rec, _ in declined]
-
-    def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
-        """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
-        and so are those in `exclude`)."""
-        return [
-            RobotStatus(
-                r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
-            )
-            for r in self.robots.values()
-            if not r.faulted and r.id not in exclude
-        ]
-
-    def _award(self, bids: list[Bid]) -> None:
-        """Let the dispatcher award announced jobs from this round's bids."""
-        open_jobs = {rec.job.id: rec for rec in self.jobs if rec.open}
-        valid = [
-            b
-            for b in bids
-            if b.job in open_jobs
-            # A robot that gave a job back does not win it again.
-            and b.robot not in open_jobs[b.job].handed_back_by
-            and b.robot in self.robots
-            and not self.robots[b.robot].faulted
-            and not self.robots[b.robot].queue
-        ]
-        self.recorder.stats["bids"] += len(bids)
-        if not valid:
-            return
-        wanted = sorted({b.job for b in valid})
-        self._apply_assignments(
-            [open_jobs[j] for j in wanted],
-            lambda jobs, statuses, context: self.dispatcher.award(valid, jobs, statuses, context),
-            queue=True,
-        )
-
-    def _apply_assignments(
-        self,
-        open_jobs: list[JobRecord],
-        choose: Callable[..., Any],
-        queue: bool = False,
-        exclude: AbstractSet[str] = frozenset(),
-    ) -> list[tuple[JobRecord, str]]:
-        """Ask `choose(jobs, statuses, context)` for assignments and apply the valid ones; with
-        `queue`, a busy robot may take a job behind its current one. Returns the assignments
-        declined because the robot had handed that job back."""
-        by_id = {rec.job.id: rec for rec in open_jobs}
-        context = DispatchContext(self.env.now, self.floor, self.planner)
-        name = self.scenario.dispatcher.name
-        try:
-            assignments = list(
-                choose([rec.job for rec in open_jobs], self._statuses(exclude), context)
-            )
-        except Exception:  # a plugin may raise anything; jobs stay open for the next try
-            self.recorder.stats["dispatcher_errors"] += 1
-            first = self.recorder.stats["dispatcher_errors"] == 1
-            log.log(
-                logging.WARNING if first else logging.DEBUG,
-                "dispatcher %r raised at t = %.3f s; jobs stay open",
-                name,
-                self.env.now,
-                exc_info=first,
-            )
-            return []
-        taken_jobs: set[str] = set()
-        declined: list[tuple[JobRecord, str]] = []
-        for a in assignments:
-            valid = isinstance(a, Assignment)
-            rec = by_id.get(a.job) if valid else None
-            robot = self.robots.get(a.robot) if valid else None
-            # A robot takes a job when idle, or (auctions) behind its current one if none waits.
-            busy = robot is not None and (
-                robot.faulted or (robot.job is not None and (not queue or bool(robot.queue)))
-            )
-            if rec is None or robot is None or busy or a.job in taken_jobs:
-                self.recorder.stats["assignments_rejected"] += 1
-                log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
-                continue
-            if robot.id in rec.handed_back_by:
-                # It gave this job back as blocked: the job waits for another robot.
-                self.recorder.stats["assignments_declined"] += 1
-                declined.append((rec, robot.id))
-                continue
-            taken_jobs.add(a.job)
-            rec.robot, rec.assigned_s = robot.id, self.env.now
-            self._announce.discard(rec.job.id)
-            if robot.job is None:
-                robot.job = rec
-            else:
-                robot.queue.append(rec)
-            self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
-        return declined
 
     # -- running --------------------------------------------------------------------------------
     def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
