@@ -35,6 +35,7 @@ from fleet.engine.agents import (
 )
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
 from fleet.engine.placement import Placement
 from fleet.engine.recorder import Recorder
@@ -48,10 +49,8 @@ from fleet.engine.summary import (
 )
 from fleet.errors import (
     FleetError,
-    GcodeError,
     MessageError,
     PluginError,
-    ScenarioError,
 )
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
@@ -67,11 +66,10 @@ from fleet.plugins import (
     load_dispatcher,
 )
 from fleet.plugins.robot import brake_input
-from fleet.printing import PrintSchedule, PrintTask
 from fleet.scenario import Scenario, parse_latency
 
 if TYPE_CHECKING:
-    from fleet.printing.quality import QualityModel
+    pass
 
 __all__ = ["World", "RunResult"]
 
@@ -147,8 +145,8 @@ class World:
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
         placement.check_reachable(homes, self.job_source.stations)
         #: Each part's print tasks, analysed from its G-code once per run.
-        self.part_tasks = self._analyse_parts()
-        self.quality = _quality_model(scenario)
+        self.part_tasks = analyse_parts(scenario)
+        self.quality = quality_model(scenario)
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
         self.dispatch = Dispatch(
             self.env,
@@ -159,6 +157,17 @@ class World:
             self.jobs,
             self.recorder,
             self.dispatcher,
+        )
+        self.lifecycle = JobLifecycle(
+            self.env,
+            scenario,
+            self.floor,
+            self.job_source,
+            self.jobs,
+            self.part_tasks,
+            self.quality,
+            self.recorder,
+            self.dispatch,
         )
 
         self.workers: WorkerPool | None = None
@@ -245,24 +254,6 @@ class World:
                 f"options = {choice.options!r}: {exc}"
             ) from None
 
-    def _analyse_parts(self) -> dict[str, tuple[PrintTask, ...]]:
-        sc = self.scenario
-        if not sc.parts:
-            return {}
-        from fleet.printing.gcode import analyze  # parsing G-code is only needed with parts
-
-        out = {}
-        for name, path in sc.parts.items():
-            try:
-                analysis = analyze(
-                    path, min_task_s=sc.min_task_s, classification=sc.classify or None
-                )
-            except (GcodeError, ValueError) as exc:
-                # Name the scenario's entry too: the user may not know which file it points to.
-                raise ScenarioError(sc.source, f"parts.{name}", str(path), str(exc)) from None
-            out[name] = analysis.print_tasks()
-        return out
-
     def planner_for(self, spec: RobotSpec) -> PathPlanner:
         """The shared path planner for robots with `spec`'s speed and acceleration limits."""
         key = (spec.v_max, spec.a_max)
@@ -271,24 +262,6 @@ class World:
         return self._planners[key]
 
     # -- processes ------------------------------------------------------------------------------
-    def _release_jobs(self):
-        for t, job in self.job_source:
-            if t > self.scenario.duration_s:
-                return
-            yield self.env.timeout(t - self.env.now)
-            tasks = self.job_source.print_tasks.pop(job.id, ())
-            if job.part is not None:
-                tasks = self.part_tasks[job.part]
-            item = self.job_source.scripted.pop(job.id, None)
-            via: tuple[tuple[str, float, float], ...] = ()
-            if item is not None:
-                stations = [self.floor.station(name) for name in item.via]
-                via = tuple((s.name, s.x, s.y) for s in stations)
-            rec = JobRecord(job, tasks=tasks, via=via, shuttle=item is not None and item.shuttle)
-            self.jobs.append(rec)
-            self.recorder.event(t, "released", job.id, station=job.station)
-            self.dispatch.request()
-
     def _robot(self, robot: RobotState):
         env = self.env
         period = robot.spec.period
@@ -302,7 +275,7 @@ class World:
             if robot.turn_rate is not None:
                 self.turning.follow_heading(robot)
             if robot.job is not None and at_rest_near(robot, robot.goal, tol):
-                self._arrive(robot)
+                self.lifecycle.arrive(robot)
             command = yield self._request(robot)
             if self.scenario.latency is None:
                 robot.ax, robot.ay = command.ax, command.ay
@@ -429,14 +402,10 @@ class World:
         out = []
         tol = self.scenario.arrival_tolerance_m
         for r in robots:
-            rec = r.job
-            if rec is not None and rec.shuttle and rec.printing_done(t) and rec.leg < len(rec.via):
-                rec.leg = len(rec.via)  # the print is done: on to the destination
+            self.lifecycle.prepare(r, t)
             goal = r.goal
             if goal is None and r.return_home:
                 goal = r.home
-            if r.job is not None and r.job.tasks and r.job.print_start_s is None:
-                self._start_print(r, t)
             self._watch_progress(r, goal, t, tol)
             if (
                 r.turn_rate is not None
@@ -562,72 +531,6 @@ class World:
         return out
 
     # -- jobs -----------------------------------------------------------------------------------
-    def _arrive(self, robot: RobotState) -> None:
-        """At rest at the current goal: pass a via station, or deliver once the print is done."""
-        rec = robot.job
-        assert rec is not None
-        t = self.env.now
-        if rec.leg < len(rec.via):
-            name = rec.via[rec.leg][0]
-            self.recorder.event(t, "passed", rec.job.id, robot.id, name)
-            rec.leg += 1
-            if rec.shuttle and rec.leg == len(rec.via) and not rec.printing_done(t):
-                rec.leg = 0  # round again while the print lasts
-            return
-        if rec.arrived_s is None:
-            rec.arrived_s = t
-            self.recorder.event(t, "arrived", rec.job.id, robot.id, rec.job.station)
-        if rec.print_start_s is None and rec.tasks:
-            return  # the print starts at the next tick
-        if not rec.printing_done(t):
-            return  # printing standing still at the destination until the part is done
-        self._deliver(robot)
-
-    def _deliver(self, robot: RobotState) -> None:
-        rec = robot.job
-        assert rec is not None
-        rec.delivered_s = self.env.now
-        self._judge(rec)
-        # Printing ends with the delivery: the caps after it no longer bind the robot.
-        rec.caps = rec.caps.window(-math.inf, self.env.now)
-        robot.past_caps.extend(rec.caps.pieces)
-        robot.jobs_completed += 1
-        robot.job = robot.queue.pop(0) if robot.queue else None
-        self.recorder.event(self.env.now, "delivered", rec.job.id, robot.id, rec.job.station)
-        self.dispatch.request()
-
-    def _start_print(self, robot: RobotState, t: float) -> None:
-        """Start the job's print at the robot's first tick after assignment, or, if it is moving,
-        as soon as it could have braked to rest: the velocity of the step in progress is already
-        fixed, so no controller could meet a cap that started earlier."""
-        rec = robot.job
-        assert rec is not None
-        spec = robot.spec
-        fastest = max(abs(robot.vx), abs(robot.vy))
-        steps = math.ceil(fastest / (spec.a_max * spec.period) - 1e-9) if fastest > 0 else 0
-        rec.print_start_s = t + steps * spec.period
-        rec.caps = PrintSchedule(rec.tasks, self.scenario.print_caps).caps_from(rec.print_start_s)
-
-    def _judge(self, rec: JobRecord) -> None:
-        """Predict the quality of a finished print from the robot's samples while printing."""
-        end = rec.print_end_s
-        if rec.quality is not None or end is None or rec.robot is None or self.quality is None:
-            return
-        start = rec.print_start_s
-        assert start is not None
-        tr = self.recorder.trajectories[rec.robot]
-        # Samples from the last one at or before the start to the first one at or after the end.
-        lo = max(0, bisect.bisect_right(tr.t, start + 1e-9) - 1)
-        hi = bisect.bisect_left(tr.t, end - 1e-9) + 1
-        t = np.asarray(tr.t[lo:hi], dtype=float)
-        xy = np.column_stack([tr.x[lo:hi], tr.y[lo:hi]]).astype(float).reshape(-1, 2)
-        v = np.column_stack([tr.vx[lo:hi], tr.vy[lo:hi]]).astype(float).reshape(-1, 2)
-        tasks = [PrintTask(k.kind, start + k.start_s, start + k.end_s) for k in rec.tasks]
-        if self.scenario.quality.scope == "print":
-            strictest = min((k.kind for k in tasks), key=self.quality.tolerance)
-            tasks = [PrintTask(strictest, start, end)]
-        rec.quality = self.quality.predict(tasks, t, xy, v, self.floor.spec.rough_areas)
-
     # -- running --------------------------------------------------------------------------------
     def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
         """Simulate `scenario.duration_s` seconds; returns the summary and the safety report.
@@ -639,7 +542,7 @@ class World:
         self._ran = True
         duration = self.scenario.duration_s
         wall0 = time.perf_counter()
-        self.env.process(self._release_jobs())
+        self.env.process(self.lifecycle.release())
         for robot in self.robots.values():
             self.env.process(self._robot(robot))
         if progress is not None:
@@ -673,9 +576,7 @@ class World:
         safety = check_safety(
             self.floor, self.robots, self.recorder, self.scenario.enforce_print_caps
         )
-        for rec in self.jobs:  # prints that finished but were not delivered by the end
-            if rec.print_end_s is not None and rec.print_end_s <= self.env.now + 1e-9:
-                self._judge(rec)
+        self.lifecycle.judge_finished()
         summary = summarise(
             self.scenario,
             self.floor,
@@ -750,11 +651,3 @@ def _thin(
 
 def _sample_time(sample: tuple[float, float, float]) -> float:
     return sample[0]
-
-
-def _quality_model(scenario: Scenario) -> QualityModel | None:
-    """The scenario's print-quality model (None when no job prints anything)."""
-    jobs = scenario.jobs
-    if not (scenario.parts or any(j.tasks for j in jobs.scripted)):
-        return None
-    return scenario.quality.model()
