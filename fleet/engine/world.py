@@ -1,94 +1,48 @@
 """The World: one SimPy environment owning the floor, the robots, the jobs, the clock and the
-single seeded random generator of a run.
+single seeded random generator of a run; the loop, and the wiring of its collaborators.
 
 Each robot is a SimPy process with its own control period. At a tick it integrates the command
 of the previous tick (the paper's double integrator), records its sample, checks arrival and asks
-the bus for a new command. All robots due at the same instant are served by one bus round: the
-engine builds their observations from one consistent snapshot, the `Exchange` sends them to the
-agents (in this process over ``inproc://`` by default) and the commands come back. Dispatching
-runs in the engine whenever a job is released or a robot falls idle.
+the bus for a new command. All robots due at the same instant are served by one bus round
+(`fleet.engine.rounds`): the engine builds their observations from one consistent snapshot
+(`fleet.engine.sensing`), the `Exchange` sends them to the agents (in this process over
+``inproc://`` by default) and the commands come back. Dispatching (`fleet.engine.dispatch`) runs
+in the engine whenever a job is released or a robot falls idle; `fleet.engine.lifecycle` takes
+each job from its release to its delivery. The World builds these collaborators, each given what
+it needs, starts the processes and, at the end, has the summary made (`fleet.engine.summary`).
 """
 
 from __future__ import annotations
 
-import bisect
-import logging
-import math
 import tempfile
 import time
-from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import simpy
 
 from fleet.bus import AgentHost, Exchange
-from fleet.bus.exchange import BusEvent
-from fleet.engine.agents import (
-    WorkerPool,
-    build_controllers,
-    load_run_floor,
-    scenario_fingerprint,
-)
+from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
 from fleet.engine.placement import Placement
 from fleet.engine.recorder import Recorder
+from fleet.engine.rounds import BusRounds
 from fleet.engine.safety import SafetyReport
-from fleet.engine.summary import (
-    cap_rows,
-    check_safety,
-    job_rows,
-    summarise,
-    task_rows,
-)
-from fleet.errors import (
-    FleetError,
-    MessageError,
-    PluginError,
-)
+from fleet.engine.sensing import Sensing
+from fleet.engine.summary import cap_rows, check_safety, job_rows, summarise, task_rows
+from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
-from fleet.plugins import (
-    CAP_LOOKAHEAD_S,
-    Announcement,
-    Command,
-    ControlStatus,
-    Neighbour,
-    Observation,
-    RobotSpec,
-    SolveReport,
-    load_dispatcher,
-)
-from fleet.plugins.robot import brake_input
+from fleet.plugins import RobotSpec, SolveReport, load_dispatcher
 from fleet.scenario import Scenario, parse_latency
 
-if TYPE_CHECKING:
-    pass
-
 __all__ = ["World", "RunResult"]
-
-log = logging.getLogger("fleet.engine")
-
-#: At most this many neighbours (the nearest) go into one observation.
-MAX_NEIGHBOURS = 8
-#: A robot that got no closer to its goal than this (m) over `Scenario.deadlock_after_s` has
-#: made no progress.
-PROGRESS_M = 0.25
-#: Robots closer than the sum of their radii plus this (m) to a stalled robot may block it.
-BLOCKING_GAP_M = 1.0
-#: How long (s) a plan stays news: a neighbour whose latest plan ended longer ago than this is
-#: shown without one (assume it stays where it is).
-PLAN_STALE_S = 1.0
-#: Neighbours see plans thinned to samples this far apart (s): each plan goes into up to
-#: `MAX_NEIGHBOURS` observations, and between samples a robot at most 0.5 m/s^2 strays
-#: a * dt^2 / 8 = 0.016 m from the chord.
-PLAN_SPACING_S = 0.5
 
 
 @dataclass
@@ -140,7 +94,6 @@ class World:
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
         self.recorder = Recorder(list(self.robots))
-        self.turning = Turning(self.env, self.recorder, self.planner_for)
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
         placement.check_reachable(homes, self.job_source.stations)
@@ -148,6 +101,13 @@ class World:
         self.part_tasks = analyse_parts(scenario)
         self.quality = quality_model(scenario)
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
+        self.workers: WorkerPool | None = None
+        self.host: AgentHost | None = None
+        self._tmpdir: tempfile.TemporaryDirectory | None = None
+        self._open_bus(workers, remote, curve, agent_wait_s)
+
+        # The loop's collaborators, each given what it needs.
+        self.turning = Turning(self.env, self.recorder, self.planner_for)
         self.dispatch = Dispatch(
             self.env,
             scenario,
@@ -169,10 +129,28 @@ class World:
             self.recorder,
             self.dispatch,
         )
+        self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning)
+        self.rounds = BusRounds(
+            self.env,
+            self.exchange,
+            scenario.latency,
+            self.robots,
+            self.jobs,
+            self.recorder,
+            self.lifecycle,
+            self.sensing,
+            self.dispatch,
+        )
 
-        self.workers: WorkerPool | None = None
-        self.host: AgentHost | None = None
-        self._tmpdir: tempfile.TemporaryDirectory | None = None
+        self._ran = False
+        #: The run's outcome once `run` has returned.
+        self.result: RunResult | None = None
+
+    # -- set-up ---------------------------------------------------------------------------------
+    def _open_bus(self, workers: int, remote: bool, curve: Any, agent_wait_s: float) -> None:
+        """Open the run's exchange and start its agents: in this process, in `workers` worker
+        processes, or none when they are `remote`; return once every robot is hosted."""
+        scenario = self.scenario
         fingerprint = scenario_fingerprint(scenario)
         address = scenario.bus_address
         if workers and (address is None or address.startswith("inproc://")):
@@ -212,13 +190,6 @@ class World:
             raise
         self.exchange.take_events()  # the agents joining before the start are no faults
 
-        self._ran = False
-        #: The run's outcome once `run` has returned.
-        self.result: RunResult | None = None
-        self._pending: list[tuple[RobotState, simpy.Event]] = []
-        self._round = 0
-
-    # -- set-up ---------------------------------------------------------------------------------
     def _wait_for_agents(self, wait_s: float) -> None:
         """Wait until every robot is hosted; with workers, give up as soon as one has died."""
         robots = list(self.robots)
@@ -262,7 +233,8 @@ class World:
         return self._planners[key]
 
     # -- processes ------------------------------------------------------------------------------
-    def _robot(self, robot: RobotState):
+    def _robot(self, robot: RobotState) -> Generator[simpy.Event, Any, None]:
+        """The SimPy process of one robot: a step, its sample, arrival, and the next command."""
         env = self.env
         period = robot.spec.period
         tol = self.scenario.arrival_tolerance_m
@@ -276,261 +248,15 @@ class World:
                 self.turning.follow_heading(robot)
             if robot.job is not None and at_rest_near(robot, robot.goal, tol):
                 self.lifecycle.arrive(robot)
-            command = yield self._request(robot)
+            command = yield self.rounds.request(robot)
             if self.scenario.latency is None:
                 robot.ax, robot.ay = command.ax, command.ay
             else:
-                # `_bus_round` queued the command with its latency: blend what is in force.
+                # The bus round queued the command with its latency: blend what is in force.
                 robot.ax, robot.ay = robot.step_input(env.now, period)
             robot.tick += 1
             yield env.timeout(period)
 
-    def _request(self, robot: RobotState) -> simpy.Event:
-        ev = self.env.event()
-        self._pending.append((robot, ev))
-        if len(self._pending) == 1:
-            # Runs after every robot due at this instant has registered (later event id).
-            self.env.timeout(0).callbacks.append(self._bus_round)
-        return ev
-
-    def _bus_round(self, _event: simpy.Event) -> None:
-        # A job released (or a robot freed) at this instant is assigned before the robots
-        # observe, so a job released at t starts being served at t, not one period later.
-        self.dispatch.run_pending()
-        pending, self._pending = self._pending, []
-        pending.sort(key=lambda p: p[0].id)
-        t = self.env.now
-        observations = self._observe([r for r, _ in pending], t)
-        self._round += 1
-        announcements = self.dispatch.announcements(t)
-        commands = self.exchange.round(self._round, t, observations, announcements)
-        latency = self.scenario.latency
-        for (robot, ev), obs in zip(pending, observations, strict=True):
-            cmd = commands.get(robot.id)
-            from_controller = cmd is not None
-            if cmd is None:
-                self.recorder.stats["commands_missing"] += 1
-                ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
-                cmd = Command(ax, ay, ControlStatus.ERROR)
-                robot.plan = robot.thinned_plan = ()  # braking, not following its plan
-            elif cmd.status is not ControlStatus.OK:
-                self.recorder.stats[f"commands_{cmd.status.value}"] += 1
-            if latency is not None:
-                delay = 0.0  # commands the engine makes itself (brakes) apply at once
-                if from_controller:
-                    if latency != "measured":
-                        delay = latency
-                        robot.latencies.append(delay)
-                    elif cmd.solve is not None:
-                        delay = max(cmd.solve.step_s, 0.0)
-                        robot.latencies.append(delay)
-                    else:
-                        robot.instant += 1  # reports no solve: counts as instant
-                robot.delay(t, delay, cmd.ax, cmd.ay)
-            if cmd.plan:
-                robot.plan = cmd.plan  # an empty plan means the previous one still holds
-                robot.thinned_plan = _thin(cmd.plan, PLAN_SPACING_S)
-                self.recorder.plan(robot.id, t, cmd.plan)
-            if cmd.solve is not None:
-                self.recorder.solves.append(cmd.solve)
-            a = robot.spec.a_max
-            if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
-                self.recorder.stats["commands_clipped"] += 1
-            if robot.job is not None and robot.job.started_s is None and obs.goal is not None:
-                robot.job.started_s = t
-                self.recorder.event(t, "started", robot.job.job.id, robot.id, robot.job.job.station)
-            ev.succeed(cmd)
-        self._after_round(t, announcements)
-
-    def _after_round(self, t: float, announcements: list[Announcement]) -> None:
-        """Bids, hand-backs and agents coming and going, as the round brought them."""
-        exchange = self.exchange
-        for hb in exchange.handbacks:
-            robot = self.robots.get(hb.robot)
-            rec = next((r for r in self.jobs if r.job.id == hb.job), None)
-            if robot is None or rec is None or rec.robot != robot.id:
-                self.recorder.stats["handbacks_rejected"] += 1
-                log.warning(
-                    "agent handed back job %s of robot %s, not its own; ignored", hb.job, hb.robot
-                )
-                continue
-            self.dispatch.hand_back(robot, rec, f"handed back: {hb.reason}", blocked=True)
-        for event in exchange.take_events():
-            self._bus_event(event)
-        if announcements:
-            self.dispatch.award(list(exchange.bids))
-
-    def _bus_event(self, event: BusEvent) -> None:
-        """An agent left, was lost or (re)joined: orphan its robots, or take them back."""
-        t = self.env.now
-        robots = [self.robots[r] for r in event.robots if r in self.robots]
-        if event.kind in ("lost", "left"):
-            self.recorder.faults["agents_lost" if event.kind == "lost" else "agents_left"] += 1
-            log.warning(
-                "t = %.2f s: agent %s %s (%s); braking robots %s",
-                t,
-                event.agent,
-                event.kind,
-                event.reason,
-                [r.id for r in robots],
-            )
-            for robot in robots:
-                if robot.faulted:
-                    continue
-                robot.faulted = True
-                robot.plan = robot.thinned_plan = ()
-                self.recorder.faults["robots_orphaned"] += 1
-                self.recorder.event(t, "fault", "", robot.id, event.agent)
-                for rec in [*robot.queue, *([robot.job] if robot.job else [])]:
-                    self.dispatch.hand_back(robot, rec, f"agent {event.agent} {event.kind}")
-        elif event.kind == "joined":
-            for robot in robots:
-                if robot.faulted:
-                    robot.faulted = False
-                    self.recorder.faults["robots_rejoined"] += 1
-                    self.recorder.event(t, "rejoined", "", robot.id, event.agent)
-            self.dispatch.request()
-
-    def _observe(self, robots: list[RobotState], t: float) -> list[Observation]:
-        radius = self.scenario.sensing_radius_m
-        priority = self._priorities(t)
-        near = (
-            self._neighbours(robots, radius, t, priority)
-            if radius > 0 and len(self.robots) > 1
-            else {}
-        )
-        out = []
-        tol = self.scenario.arrival_tolerance_m
-        for r in robots:
-            self.lifecycle.prepare(r, t)
-            goal = r.goal
-            if goal is None and r.return_home:
-                goal = r.home
-            self._watch_progress(r, goal, t, tol)
-            if (
-                r.turn_rate is not None
-                and goal is not None
-                and self.turning.turns_first(r, goal, t, tol)
-            ):
-                goal = (r.x, r.y)  # turning on the spot: hold here until the turn is done
-            caps = r.job.caps if r.job is not None else None
-            cap = None
-            window: tuple[tuple[float, float, float], ...] = ()
-            if caps:
-                window = caps.window(t, t + CAP_LOOKAHEAD_S).pieces
-                over = caps.cap_over(t, t + r.spec.period)
-                cap = None if math.isinf(over) else over
-            out.append(
-                Observation(
-                    robot=r.id,
-                    tick=r.tick,
-                    t=t,
-                    x=r.x,
-                    y=r.y,
-                    vx=r.vx,
-                    vy=r.vy,
-                    goal=goal,
-                    job=None if r.job is None else r.job.job.id,
-                    speed_cap=cap,
-                    neighbours=near.get(r.id, ()),
-                    speed_caps=window,
-                    print_end_s=None if r.job is None else r.job.print_end_s,
-                    priority=priority[r.id],
-                    blockers=r.blockers,
-                    queued=len(r.queue),
-                )
-            )
-        return out
-
-    def _priorities(self, t: float) -> dict[str, int]:
-        """Each robot's priority now: robots freed from a deadlock first, then robots with a job,
-        then the rest; smaller ids first within each class (unique, higher goes first)."""
-        n = len(self.robots)
-        return {
-            r.id: r.rank + (2 * n if t < r.boosted_until else 0) + (n if r.job is not None else 0)
-            for r in self.robots.values()
-        }
-
-    def _watch_progress(
-        self, r: RobotState, goal: tuple[float, float] | None, t: float, tol: float
-    ) -> None:
-        """Deadlock detection: a robot that has got no closer to its goal for
-        `Scenario.deadlock_after_s` while other robots stand close is blocked by them; its
-        observation names them (its controller routes round them) and its priority is raised."""
-        after = self.scenario.deadlock_after_s
-        if goal is None or after is None or r.faulted:
-            r.watched_goal, r.blockers = None, ()
-            return
-        gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
-        if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M:
-            r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, t, ()
-            return
-        if t - r.progress_s < after - 1e-9:
-            return
-        # Robots standing on this one's goal are no deadlock: it waits its turn there.
-        blockers = tuple(
-            o.id
-            for o in self.robots.values()
-            if o is not r
-            and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + BLOCKING_GAP_M
-            and math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
-        )
-        if blockers and not r.blockers:
-            self.recorder.stats["deadlocks"] += 1
-            r.boosted_until = t + after
-            self.recorder.event(
-                t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(blockers)
-            )
-            log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, list(blockers))
-        r.blockers = blockers
-
-    def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
-        """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;
-        empty when it has none or it ended more than `PLAN_STALE_S` ago."""
-        plan = r.thinned_plan
-        if not plan or plan[-1][0] < t - PLAN_STALE_S:
-            return ()
-        i = bisect.bisect_right(plan, t, key=_sample_time)
-        if i == len(plan):
-            return ((t, plan[-1][1], plan[-1][2]),)
-        if i == 0:
-            return plan
-        (t0, x0, y0), (t1, x1, y1) = plan[i - 1], plan[i]
-        f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-        return ((t, x0 + f * (x1 - x0), y0 + f * (y1 - y0)), *plan[i:])
-
-    def _neighbours(
-        self, robots: list[RobotState], radius: float, t: float, priority: dict[str, int]
-    ) -> dict[str, tuple]:
-        cells: dict[tuple[int, int], list[RobotState]] = defaultdict(list)
-        for r in self.robots.values():
-            cells[(int(r.x // radius), int(r.y // radius))].append(r)
-        out = {}
-        plans: dict[str, tuple] = {}
-        r2 = radius * radius
-        for r in robots:
-            cx, cy = int(r.x // radius), int(r.y // radius)
-            found = []
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    for o in cells.get((cx + dx, cy + dy), ()):
-                        d2 = (o.x - r.x) ** 2 + (o.y - r.y) ** 2
-                        if o is not r and d2 <= r2:
-                            found.append((d2, o.id, o))
-            found.sort()
-            near = []
-            for _, _, o in found[:MAX_NEIGHBOURS]:
-                if o.id not in plans:
-                    plans[o.id] = self._future_plan(o, t)
-                near.append(
-                    Neighbour(
-                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plans[o.id]
-                    )
-                )
-            out[r.id] = tuple(near)
-        return out
-
-    # -- jobs -----------------------------------------------------------------------------------
     # -- running --------------------------------------------------------------------------------
     def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
         """Simulate `scenario.duration_s` seconds; returns the summary and the safety report.
@@ -566,7 +292,10 @@ class World:
             self._tmpdir.cleanup()
             self._tmpdir = None
 
-    def _progress(self, progress: Callable[[float], None], duration: float):
+    def _progress(
+        self, progress: Callable[[float], None], duration: float
+    ) -> Generator[simpy.Event, None, None]:
+        """Report the simulated time about 200 times over the run (at most once per tick)."""
         step = max(duration / 200.0, min(r.spec.period for r in self.robots.values()))
         while True:
             progress(self.env.now)
@@ -586,7 +315,7 @@ class World:
             safety,
             now=float(self.env.now),
             wall_time_s=wall_time,
-            bus_rounds=self._round,
+            bus_rounds=self.rounds.count,
             bus_stats=self.exchange.stats,
         )
         return RunResult(summary, safety, list(self.jobs))
@@ -631,23 +360,3 @@ class World:
     def faults(self) -> dict[str, int]:
         """Faults seen on the bus (agents lost, left, robots orphaned, rejoined)."""
         return self.recorder.faults
-
-
-def _thin(
-    plan: tuple[tuple[float, float, float], ...], spacing: float
-) -> tuple[tuple[float, float, float], ...]:
-    """`plan` with samples at least `spacing` seconds apart (the first and last kept)."""
-    if len(plan) <= 2:
-        return plan
-    out = [plan[0]]
-    for sample in plan[1:-1]:
-        if sample[0] - out[-1][0] >= spacing - 1e-9:
-            out.append(sample)
-    if plan[-1][0] - out[-1][0] < spacing / 2 and len(out) > 1:
-        out.pop()  # keep the last sample, not one a moment before it
-    out.append(plan[-1])
-    return tuple(out)
-
-
-def _sample_time(sample: tuple[float, float, float]) -> float:
-    return sample[0]
