@@ -7,7 +7,9 @@ only for type checking are left out, since they never run). The rules:
 - the core never imports the built-in plugins (they register through entry points, as a third
   party's do);
 - each room imports only the rooms below it (`MAY_IMPORT`, the table in docs/architecture.md);
-- every package says its one job in its ``__init__`` docstring.
+- every package says its one job in its ``__init__`` docstring;
+- the engine stays split into collaborators: `fleet/engine/world.py` (the SimPy loop and the
+  wiring) under 500 lines, and no class in `fleet/engine` over 400.
 """
 
 from __future__ import annotations
@@ -159,3 +161,26 @@ def test_the_core_keeps_at_most_three_modules_beside_its_rooms():
         if p.name not in {"__init__.py", "__main__.py"}
     )
     assert loose == ["cli.py", "errors.py", "highs.py"]
+
+
+#: The engine's limits: every new feature tempts to land in the World, so its size is watched.
+WORLD_MAX_LINES = 500
+ENGINE_CLASS_MAX_LINES = 400
+
+
+def test_the_world_is_the_loop_and_the_wiring_in_under_500_lines():
+    lines = len((ROOT / "fleet" / "engine" / "world.py").read_text(encoding="utf-8").splitlines())
+    assert lines < WORLD_MAX_LINES, (
+        f"fleet/engine/world.py has {lines} lines: give the new job a collaborator of its own"
+    )
+
+
+def test_no_class_of_the_engine_is_over_400_lines():
+    big = []
+    for path in sorted((ROOT / "fleet" / "engine").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef):
+                size = node.end_lineno - node.lineno + 1
+                if size > ENGINE_CLASS_MAX_LINES:
+                    big.append(f"{path.relative_to(ROOT)}: {node.name} ({size} lines)")
+    assert big == []
