@@ -1,12 +1,19 @@
-"""The discrete-event engine: the World (SimPy), jobs, agents, safety checks and the recorder.
+"""The discrete-event engine: the World (SimPy), its collaborators, agents, safety and recorder.
 
-`world` is the loop and the wiring; `jobs` the job lifecycle; `agents` the robot agents'
-processes; `safety` judges every step; `recorder` writes the run directory. The engine may
-import every room below it (floor, paths, printing, scenario, plugins, bus), never study or view.
+`world` is the SimPy loop and the wiring; each collaborator it builds has one job, and gets what
+it needs passed in: `placement` (start spots, reachability checks), `motion` (the robots' state,
+delayed inputs, turning in place), `jobs` (job records and where jobs come from), `lifecycle`
+(release, print start, arrival, delivery, judging), `dispatch` (assignments, auctions,
+hand-backs), `sensing` (observations, neighbours and their plans, priorities, deadlock watch),
+`rounds` (the bus round). `agents` runs the robot agents' processes; `safety` judges every step;
+`recorder` keeps what happened and writes the run directory, `summary` makes summary.json and
+the CSV rows from it. The engine may import every room below it (floor, paths, printing,
+scenario, plugins, bus), never study or view.
 """
 
 from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.motion import RobotState
 from fleet.engine.recorder import Recorder
-from fleet.engine.world import RobotState, RunResult, World
+from fleet.engine.world import RunResult, World
 
 __all__ = ["World", "RobotState", "RunResult", "JobRecord", "JobSource", "Recorder"]

@@ -2,7 +2,7 @@
 
 The engine and every agent must agree on the robots (ids, specs) and on the controller: both
 follow from the scenario, so an agent needs only the scenario and the ids of the robots it
-hosts. `robot_specs` numbers the robots exactly as `fleet.engine.world.World` does;
+hosts. `robot_specs` numbers the robots exactly as the engine (`fleet.engine.motion`) does;
 `build_controllers` loads and resets the controller plugins as the engine's own host does, so a
 robot computes the same commands in the engine's process, in a worker process
 (`fleet run --workers W`) or on another machine (`fleet agent --connect`).

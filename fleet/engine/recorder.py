@@ -1,5 +1,9 @@
 """The recorder: turns what happened in a run into the run directory.
 
+During the run it keeps every sample, event, planned horizon, count and solve report; after it,
+`fleet.engine.summary` makes summary.json's object and the CSV rows from them, and the recorder
+writes the files.
+
 Output contract (extend it, never break it):
 
 - ``summary.json``: scenario, map, seed, controller, dispatcher, robots, sim_time_s,
@@ -34,6 +38,7 @@ import csv
 import hashlib
 import json
 import math
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from fleet.floor import Floor
+from fleet.plugins import SolveReport
 
 __all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S", "PLAN_SAMPLE_S"]
 
@@ -91,7 +97,8 @@ class Trajectory:
 
 
 class Recorder:
-    """Collects samples and events during a run; writes the run directory afterwards."""
+    """Collects samples, events, counts and solve reports during a run; writes the run
+    directory afterwards."""
 
     def __init__(self, robots: list[str]) -> None:
         self.trajectories: dict[str, Trajectory] = {r: Trajectory() for r in robots}
@@ -100,6 +107,15 @@ class Recorder:
         #: per `PLAN_RECORD_S`.
         self.plans: list[tuple[float, str, tuple[tuple[float, float, float], ...]]] = []
         self._plan_kept: dict[str, float] = {}
+        #: What the engine counted (commands missing or clipped, bids, deadlocks, hand-backs...):
+        #: summary.json's ``engine`` object.
+        self.stats: dict[str, int] = defaultdict(int)
+        #: The solve reports controllers attached to their commands, in the order they came.
+        self.solves: list[SolveReport] = []
+        #: Faults seen on the bus: agents lost or gone, robots orphaned, agents that rejoined.
+        self.faults: dict[str, int] = dict.fromkeys(
+            ("agents_lost", "agents_left", "robots_orphaned", "robots_rejoined"), 0
+        )
 
     def sample(self, robot: str, t: float, x: float, y: float, vx: float, vy: float) -> None:
         self.trajectories[robot].append(t, x, y, vx, vy)
@@ -144,7 +160,7 @@ class Recorder:
         tasks: list[tuple[str, str, str, float, float]] | None = None,
     ) -> None:
         """Write the run directory; `caps` rows are (robot, job, kind, start_s, end_s, cap),
-        `jobs` rows are `World.job_rows` dicts, `tasks` rows (robot, job, kind, start_s, end_s)
+        `jobs` rows are `summary.job_rows` dicts, `tasks` rows (robot, job, kind, start_s, end_s)
         every print task on the clock. ``plans.csv`` holds the kept planned horizons."""
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(

@@ -1,214 +1,48 @@
 """The World: one SimPy environment owning the floor, the robots, the jobs, the clock and the
-single seeded random generator of a run.
+single seeded random generator of a run; the loop, and the wiring of its collaborators.
 
 Each robot is a SimPy process with its own control period. At a tick it integrates the command
 of the previous tick (the paper's double integrator), records its sample, checks arrival and asks
-the bus for a new command. All robots due at the same instant are served by one bus round: the
-engine builds their observations from one consistent snapshot, the `Exchange` sends them to the
-agents (in this process over ``inproc://`` by default) and the commands come back. Dispatching
-runs in the engine whenever a job is released or a robot falls idle.
+the bus for a new command. All robots due at the same instant are served by one bus round
+(`fleet.engine.rounds`): the engine builds their observations from one consistent snapshot
+(`fleet.engine.sensing`), the `Exchange` sends them to the agents (in this process over
+``inproc://`` by default) and the commands come back. Dispatching (`fleet.engine.dispatch`) runs
+in the engine whenever a job is released or a robot falls idle; `fleet.engine.lifecycle` takes
+each job from its release to its delivery. The World builds these collaborators, each given what
+it needs, starts the processes and, at the end, has the summary made (`fleet.engine.summary`).
 """
 
 from __future__ import annotations
 
-import bisect
-import logging
-import math
 import tempfile
 import time
-from array import array
-from collections import defaultdict
-from collections.abc import Callable, Iterable
-from collections.abc import Set as AbstractSet
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-import networkx as nx
 import numpy as np
 import simpy
 
 from fleet.bus import AgentHost, Exchange
-from fleet.bus.exchange import BusEvent
-from fleet.engine.agents import (
-    WorkerPool,
-    build_controllers,
-    load_run_floor,
-    robot_specs,
-    scenario_fingerprint,
-)
+from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
+from fleet.engine.dispatch import Dispatch
 from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
+from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
+from fleet.engine.placement import Placement
 from fleet.engine.recorder import Recorder
-from fleet.engine.safety import SafetyChecker, SafetyReport
-from fleet.errors import (
-    FleetError,
-    GcodeError,
-    MessageError,
-    NoPathError,
-    PluginError,
-    ScenarioError,
-)
+from fleet.engine.rounds import BusRounds
+from fleet.engine.safety import SafetyReport
+from fleet.engine.sensing import Sensing
+from fleet.engine.summary import cap_rows, check_safety, job_rows, summarise, task_rows
+from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
-from fleet.plugins import (
-    CAP_LOOKAHEAD_S,
-    Announcement,
-    Assignment,
-    Bid,
-    Command,
-    ControlStatus,
-    DispatchContext,
-    Neighbour,
-    Observation,
-    RobotSpec,
-    RobotStatus,
-    SolveReport,
-    load_dispatcher,
-)
-from fleet.plugins.robot import DoubleIntegrator, brake_input, clip
-from fleet.printing import CapSchedule, PrintSchedule, PrintTask
-from fleet.scenario import Latency, Scenario, ScriptedJob, parse_latency
+from fleet.plugins import RobotSpec, SolveReport, load_dispatcher
+from fleet.scenario import Scenario, parse_latency
 
-if TYPE_CHECKING:
-    from fleet.printing.quality import QualityModel
-
-__all__ = ["World", "RobotState", "RunResult"]
-
-log = logging.getLogger("fleet.engine")
-
-#: A robot counts as stopped below this speed (m/s) per axis.
-REST_SPEED = 1e-3
-#: At most this many neighbours (the nearest) go into one observation.
-MAX_NEIGHBOURS = 8
-#: Course changes (rad) smaller than this need no turn in place.
-TURN_EPSILON = 1e-3
-#: How often (s) open jobs nobody won are announced again (auctions).
-REANNOUNCE_S = 5.0
-#: A robot that got no closer to its goal than this (m) over `Scenario.deadlock_after_s` has
-#: made no progress.
-PROGRESS_M = 0.25
-#: Robots closer than the sum of their radii plus this (m) to a stalled robot may block it.
-BLOCKING_GAP_M = 1.0
-#: How long (s) a plan stays news: a neighbour whose latest plan ended longer ago than this is
-#: shown without one (assume it stays where it is).
-PLAN_STALE_S = 1.0
-#: Neighbours see plans thinned to samples this far apart (s): each plan goes into up to
-#: `MAX_NEIGHBOURS` observations, and between samples a robot at most 0.5 m/s^2 strays
-#: a * dt^2 / 8 = 0.016 m from the chord.
-PLAN_SPACING_S = 0.5
-#: Effect times (s) this close to a step's start or end count as at it (compute latency):
-#: a latency of exactly one period takes effect at the next tick despite rounding.
-EFFECT_EPS_S = 1e-9
-
-
-@dataclass(slots=True)
-class RobotState:
-    """A robot as the engine knows it (the engine is authoritative over positions)."""
-
-    id: str
-    spec: RobotSpec
-    model: DoubleIntegrator
-    home: tuple[float, float]
-    x: float
-    y: float
-    vx: float = 0.0
-    vy: float = 0.0
-    ax: float = 0.0
-    ay: float = 0.0
-    tick: int = 0
-    job: JobRecord | None = None
-    #: Jobs awarded while busy (auctions), taken up in order after the current one.
-    queue: list[JobRecord] = field(default_factory=list)
-    jobs_completed: int = 0
-    return_home: bool = True
-    #: The latest plan the robot's controller sent, ``(t, x, y)`` samples (empty: none yet),
-    #: and the same thinned to `PLAN_SPACING_S` for the neighbours' observations.
-    plan: tuple[tuple[float, float, float], ...] = ()
-    thinned_plan: tuple[tuple[float, float, float], ...] = ()
-    #: Print caps of the jobs this robot has finished (the current job's are in `job.caps`).
-    past_caps: list[tuple[float, float, float]] = field(default_factory=list)
-    #: Turning in place (`RobotsConfig.turn_radius_m`): angular speed (rad/s; None: the robot
-    #: is holonomic), settle time, current heading (None until it first sets off), the end of
-    #: the turn in progress and the cumulative turning angle.
-    turn_rate: float | None = None
-    turn_settle_s: float = 0.0
-    heading: float | None = None
-    turning_until: float = -math.inf
-    turned_rad: float = 0.0
-    #: Unique rank among the robots (higher goes first), before deadlock boosts.
-    rank: int = 0
-    #: Its agent is gone (lost or left): the robot is braked and takes no jobs until an agent
-    #: hosts it again.
-    faulted: bool = False
-    #: Progress watch for deadlock detection: closest distance to the current goal so far, and
-    #: when it last improved by `PROGRESS_M`.
-    best_gap: float = math.inf
-    progress_s: float = 0.0
-    watched_goal: tuple[float, float] | None = None
-    #: Robots found blocking this one (deadlock), and until when its priority is raised.
-    blockers: tuple[str, ...] = ()
-    boosted_until: float = -math.inf
-    #: Compute latency (`Scenario.latency`): inputs waiting to take effect as ``(effect time,
-    #: ax, ay)`` in order of effect (clipped to a_max), the input in force (the last one that
-    #: took effect; 0 at the start), the latency (s) of each controller command that had one,
-    #: and (measured latency) the commands without a solve report, applied at once.
-    pending: list[tuple[float, float, float]] = field(default_factory=list)
-    in_force: tuple[float, float] = (0.0, 0.0)
-    latencies: array = field(default_factory=lambda: array("d"))
-    instant: int = 0
-
-    def delay(self, t: float, latency: float, ax: float, ay: float) -> None:
-        """Queue input (`ax`, `ay`), computed at `t`, to take effect at ``t + latency``.
-
-        Each axis is clipped to a_max first, so blends of inputs stay within the bounds. Pending
-        inputs that would take effect no earlier are superseded: they never apply.
-        """
-        a = self.spec.a_max
-        effect = t + latency
-        while self.pending and self.pending[-1][0] >= effect - EFFECT_EPS_S:
-            self.pending.pop()
-        self.pending.append((effect, clip(ax, a), clip(ay, a)))
-
-    def step_input(self, t: float, dt: float) -> tuple[float, float]:
-        """The input for the step [`t`, `t` + `dt`): the time-weighted mean of the inputs in
-        force during it (pending ones taking effect at their effect times).
-
-        When one input holds over the whole step it is returned as it is (no arithmetic), so
-        a latency of 0 moves the robot exactly as no latency does.
-        """
-        ax, ay = self.in_force
-        sx = sy = 0.0
-        at = 0.0  # offset into the step up to which (sx, sy) integrates
-        while self.pending and self.pending[0][0] - t < dt - EFFECT_EPS_S:
-            effect, nx, ny = self.pending.pop(0)
-            offset = effect - t
-            if offset > at + EFFECT_EPS_S:
-                sx += ax * (offset - at)
-                sy += ay * (offset - at)
-                at = offset
-            ax, ay = nx, ny
-        self.in_force = (ax, ay)
-        if at == 0.0:
-            return ax, ay
-        sx += ax * (dt - at)
-        sy += ay * (dt - at)
-        return sx / dt, sy / dt
-
-    def caps(self) -> CapSchedule:
-        """Every print-cap piece this robot has been under so far (for the safety checker)."""
-        current = self.job.caps.pieces if self.job is not None else ()
-        return CapSchedule(tuple(self.past_caps) + current)
-
-    @property
-    def goal(self) -> tuple[float, float] | None:
-        """Where the current job sends the robot next: a via station, or the destination."""
-        rec = self.job
-        if rec is None:
-            return None
-        if rec.leg < len(rec.via):
-            _, x, y = rec.via[rec.leg]
-            return (x, y)
-        return (rec.job.x, rec.job.y)
+__all__ = ["World", "RunResult"]
 
 
 @dataclass
@@ -254,57 +88,69 @@ class World:
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
         self._planners: dict[tuple[float, float], PathPlanner] = {}
-        self._components = {
-            region: n
-            for n, members in enumerate(nx.connected_components(self.floor.graph))
-            for region in members
-        }
-        homes = self._start_positions()
-        self.robots: dict[str, RobotState] = {}
-        ids = iter(robot_specs(scenario))
-        for group in scenario.robots:
-            spec = RobotSpec(group.v_max, group.a_max, group.radius, group.period_s)
-            model = DoubleIntegrator(group.period_s, group.a_max)
-            rate = None if group.turn_radius_m is None else group.v_max / group.turn_radius_m
-            for _ in range(group.count):
-                rid = next(ids)
-                hx, hy = homes[len(self.robots)]
-                self.robots[rid] = RobotState(
-                    rid,
-                    spec,
-                    model,
-                    (hx, hy),
-                    hx,
-                    hy,
-                    return_home=group.return_home,
-                    turn_rate=rate,
-                    turn_settle_s=group.turn_settle_s,
-                )
-        # Smaller ids go first among robots of equal standing.
-        for n, r in enumerate(self.robots.values()):
-            r.rank = len(self.robots) - n
+        placement = Placement(scenario, self.floor)
+        homes = placement.start_positions()
+        self.robots = build_robots(scenario, homes)
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
         self.recorder = Recorder(list(self.robots))
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
-        self._check_reachable(homes)
+        placement.check_reachable(homes, self.job_source.stations)
         #: Each part's print tasks, analysed from its G-code once per run.
-        self.part_tasks = self._analyse_parts()
-        self.quality = _quality_model(scenario)
+        self.part_tasks = analyse_parts(scenario)
+        self.quality = quality_model(scenario)
         self.dispatcher = self._plugin("dispatcher", load_dispatcher)
-        # Duck-typed dispatchers (not subclassing Dispatcher) are plain assigners.
-        self._auction = bool(getattr(self.dispatcher, "announces", False))
-        self.stats: dict[str, int] = defaultdict(int)
-        self.solves: list[SolveReport] = []
-
-        #: Faults seen on the bus: agents lost or gone, robots orphaned, agents that rejoined.
-        self.faults: dict[str, int] = dict.fromkeys(
-            ("agents_lost", "agents_left", "robots_orphaned", "robots_rejoined"), 0
-        )
         self.workers: WorkerPool | None = None
         self.host: AgentHost | None = None
         self._tmpdir: tempfile.TemporaryDirectory | None = None
+        self._open_bus(workers, remote, curve, agent_wait_s)
+
+        # The loop's collaborators, each given what it needs.
+        self.turning = Turning(self.env, self.recorder, self.planner_for)
+        self.dispatch = Dispatch(
+            self.env,
+            scenario,
+            self.floor,
+            self.planner,
+            self.robots,
+            self.jobs,
+            self.recorder,
+            self.dispatcher,
+        )
+        self.lifecycle = JobLifecycle(
+            self.env,
+            scenario,
+            self.floor,
+            self.job_source,
+            self.jobs,
+            self.part_tasks,
+            self.quality,
+            self.recorder,
+            self.dispatch,
+        )
+        self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning)
+        self.rounds = BusRounds(
+            self.env,
+            self.exchange,
+            scenario.latency,
+            self.robots,
+            self.jobs,
+            self.recorder,
+            self.lifecycle,
+            self.sensing,
+            self.dispatch,
+        )
+
+        self._ran = False
+        #: The run's outcome once `run` has returned.
+        self.result: RunResult | None = None
+
+    # -- set-up ---------------------------------------------------------------------------------
+    def _open_bus(self, workers: int, remote: bool, curve: Any, agent_wait_s: float) -> None:
+        """Open the run's exchange and start its agents: in this process, in `workers` worker
+        processes, or none when they are `remote`; return once every robot is hosted."""
+        scenario = self.scenario
         fingerprint = scenario_fingerprint(scenario)
         address = scenario.bus_address
         if workers and (address is None or address.startswith("inproc://")):
@@ -344,18 +190,6 @@ class World:
             raise
         self.exchange.take_events()  # the agents joining before the start are no faults
 
-        self._ran = False
-        #: The run's outcome once `run` has returned.
-        self.result: RunResult | None = None
-        self._pending: list[tuple[RobotState, simpy.Event]] = []
-        self._round = 0
-        self._dispatch_scheduled = False
-        self._idle_since: dict[str, float] = {}
-        #: Jobs to announce at the next bus round (auctions), and when each was last announced.
-        self._announce: set[str] = set()
-        self._announced_s: dict[str, float] = {}
-
-    # -- set-up ---------------------------------------------------------------------------------
     def _wait_for_agents(self, wait_s: float) -> None:
         """Wait until every robot is hosted; with workers, give up as soon as one has died."""
         robots = list(self.robots)
@@ -391,24 +225,6 @@ class World:
                 f"options = {choice.options!r}: {exc}"
             ) from None
 
-    def _analyse_parts(self) -> dict[str, tuple[PrintTask, ...]]:
-        sc = self.scenario
-        if not sc.parts:
-            return {}
-        from fleet.printing.gcode import analyze  # parsing G-code is only needed with parts
-
-        out = {}
-        for name, path in sc.parts.items():
-            try:
-                analysis = analyze(
-                    path, min_task_s=sc.min_task_s, classification=sc.classify or None
-                )
-            except (GcodeError, ValueError) as exc:
-                # Name the scenario's entry too: the user may not know which file it points to.
-                raise ScenarioError(sc.source, f"parts.{name}", str(path), str(exc)) from None
-            out[name] = analysis.print_tasks()
-        return out
-
     def planner_for(self, spec: RobotSpec) -> PathPlanner:
         """The shared path planner for robots with `spec`'s speed and acceleration limits."""
         key = (spec.v_max, spec.a_max)
@@ -416,135 +232,9 @@ class World:
             self._planners[key] = PathPlanner(self.floor, v_max=spec.v_max, a_max=spec.a_max)
         return self._planners[key]
 
-    def _start_positions(self) -> list[tuple[float, float]]:
-        """Distinct start positions around each group's start stations (cycled), clear of each
-        other, in robot order."""
-        stations = self.floor.stations
-        depots = [s.name for s in self.floor.spec.stations if s.kind == "depot"]
-        spacing = 2.0 * max(g.radius for g in self.scenario.robots) + 0.2
-        components = self._components
-        taken: dict[tuple[int, int], list[tuple[float, float]]] = defaultdict(list)
-        spots: dict[str, Any] = {}
-        out: list[tuple[float, float]] = []
-        for g, group in enumerate(self.scenario.robots):
-            where = "robots" if len(self.scenario.robots) == 1 else f"robots[{g}]"
-            for i, name in enumerate(group.start):
-                if name not in stations:
-                    raise ScenarioError(
-                        self.scenario.source,
-                        f"{where}.start[{i}]",
-                        name,
-                        f"no such station on {self.floor.source} "
-                        f"(known: {', '.join(sorted(stations))})",
-                    )
-            names = list(group.start) or depots or [self.floor.spec.stations[0].name]
-            for i in range(group.count):
-                name = names[i % len(names)]
-                if name not in spots:
-                    spots[name] = self._spots_around(stations[name], spacing, components)
-                out.append(self._claim(spots[name], taken, spacing, name, where, group.count))
-        return out
-
-    def _check_reachable(self, homes: list[tuple[float, float]]) -> None:
-        """Every job destination must be reachable from every robot's start: a job no robot can
-        reach would sit assigned forever."""
-        starts = {self._components[self.floor.locate(*h)] for h in homes}
-        jobs = self.scenario.jobs
-        if jobs.mode == "scripted":
-            targets = []
-            for i, j in enumerate(jobs.scripted):
-                targets.append((f"jobs.scripted[{i}].station", j.station))
-                targets += [(f"jobs.scripted[{i}].via[{k}]", name) for k, name in enumerate(j.via)]
-                self._check_shuttle(i, j)
-        else:
-            targets = [("jobs.stations", name) for name in self.job_source.stations]
-        for field_name, name in targets:
-            s = self.floor.station(name)
-            part = self._components.get(self.floor.locate(s.x, s.y))
-            if starts != {part}:
-                raise ScenarioError(
-                    self.scenario.source,
-                    field_name,
-                    name,
-                    f"station {name!r} on {self.floor.source} cannot be reached from every "
-                    "robot's start (the floor is split into unconnected parts)",
-                )
-
-    def _check_shuttle(self, i: int, job: ScriptedJob) -> None:
-        """A shuttle needs a print to last for, and two via stations apart, or it never moves."""
-        if not job.shuttle:
-            return
-        src = self.scenario.source
-        if not (job.tasks or job.part):
-            raise ScenarioError(
-                src, f"jobs.scripted[{i}].shuttle", True, "a shuttle needs a part or print"
-            )
-        points = [self.floor.station(name) for name in job.via]
-        apart = 2.0 * self.scenario.arrival_tolerance_m
-        if all(math.hypot(p.x - points[0].x, p.y - points[0].y) <= apart for p in points):
-            raise ScenarioError(
-                src,
-                f"jobs.scripted[{i}].via",
-                list(job.via),
-                "a shuttle needs at least two via stations at different places",
-            )
-
-    def _claim(
-        self, spots, taken, spacing: float, name: str, where: str, count: int
-    ) -> tuple[float, float]:
-        """The next of `spots` at least `spacing` from every spot already taken."""
-        for p in spots:
-            cx, cy = int(p[0] // spacing), int(p[1] // spacing)
-            cells = [(cx + dx, cy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
-            if all(
-                math.hypot(p[0] - q[0], p[1] - q[1]) >= spacing - 1e-9
-                for c in cells
-                for q in taken.get(c, ())
-            ):
-                taken[cx, cy].append(p)
-                return p
-        s = self.floor.station(name)
-        raise ScenarioError(
-            self.scenario.source,
-            f"{where}.count",
-            count,
-            f"no free start position left near {name} ({s.x:g}, {s.y:g}); "
-            "use fewer robots or more start stations",
-        )
-
-    def _spots_around(self, station, spacing: float, components: dict[int, int]):
-        """Free spots on a square grid around `station`, ring by ring, reachable from it."""
-        home = components.get(self.floor.locate(station.x, station.y))
-        for ring in range(0, 60):
-            for dx in range(-ring, ring + 1):
-                for dy in range(-ring, ring + 1):
-                    if max(abs(dx), abs(dy)) != ring:
-                        continue
-                    p = (station.x + dx * spacing, station.y + dy * spacing)
-                    region = self.floor.locate(*p)
-                    if region is not None and components[region] == home:
-                        yield p
-
     # -- processes ------------------------------------------------------------------------------
-    def _release_jobs(self):
-        for t, job in self.job_source:
-            if t > self.scenario.duration_s:
-                return
-            yield self.env.timeout(t - self.env.now)
-            tasks = self.job_source.print_tasks.pop(job.id, ())
-            if job.part is not None:
-                tasks = self.part_tasks[job.part]
-            item = self.job_source.scripted.pop(job.id, None)
-            via: tuple[tuple[str, float, float], ...] = ()
-            if item is not None:
-                stations = [self.floor.station(name) for name in item.via]
-                via = tuple((s.name, s.x, s.y) for s in stations)
-            rec = JobRecord(job, tasks=tasks, via=via, shuttle=item is not None and item.shuttle)
-            self.jobs.append(rec)
-            self.recorder.event(t, "released", job.id, station=job.station)
-            self._request_dispatch()
-
-    def _robot(self, robot: RobotState):
+    def _robot(self, robot: RobotState) -> Generator[simpy.Event, Any, None]:
+        """The SimPy process of one robot: a step, its sample, arrival, and the next command."""
         env = self.env
         period = robot.spec.period
         tol = self.scenario.arrival_tolerance_m
@@ -555,561 +245,17 @@ class World:
                 )
             self.recorder.sample(robot.id, env.now, robot.x, robot.y, robot.vx, robot.vy)
             if robot.turn_rate is not None:
-                self._follow_heading(robot)
-            if robot.job is not None and _at_rest_near(robot, robot.goal, tol):
-                self._arrive(robot)
-            command = yield self._request(robot)
+                self.turning.follow_heading(robot)
+            if robot.job is not None and at_rest_near(robot, robot.goal, tol):
+                self.lifecycle.arrive(robot)
+            command = yield self.rounds.request(robot)
             if self.scenario.latency is None:
                 robot.ax, robot.ay = command.ax, command.ay
             else:
-                # `_bus_round` queued the command with its latency: blend what is in force.
+                # The bus round queued the command with its latency: blend what is in force.
                 robot.ax, robot.ay = robot.step_input(env.now, period)
             robot.tick += 1
             yield env.timeout(period)
-
-    def _request(self, robot: RobotState) -> simpy.Event:
-        ev = self.env.event()
-        self._pending.append((robot, ev))
-        if len(self._pending) == 1:
-            # Runs after every robot due at this instant has registered (later event id).
-            self.env.timeout(0).callbacks.append(self._bus_round)
-        return ev
-
-    def _bus_round(self, _event: simpy.Event) -> None:
-        if self._dispatch_scheduled:
-            # A job released (or a robot freed) at this instant is assigned before the robots
-            # observe, so a job released at t starts being served at t, not one period later.
-            self._dispatch(None)
-        pending, self._pending = self._pending, []
-        pending.sort(key=lambda p: p[0].id)
-        t = self.env.now
-        observations = self._observe([r for r, _ in pending], t)
-        self._round += 1
-        announcements = self._announcements(t)
-        commands = self.exchange.round(self._round, t, observations, announcements)
-        latency = self.scenario.latency
-        for (robot, ev), obs in zip(pending, observations, strict=True):
-            cmd = commands.get(robot.id)
-            from_controller = cmd is not None
-            if cmd is None:
-                self.stats["commands_missing"] += 1
-                ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
-                cmd = Command(ax, ay, ControlStatus.ERROR)
-                robot.plan = robot.thinned_plan = ()  # braking, not following its plan
-            elif cmd.status is not ControlStatus.OK:
-                self.stats[f"commands_{cmd.status.value}"] += 1
-            if latency is not None:
-                delay = 0.0  # commands the engine makes itself (brakes) apply at once
-                if from_controller:
-                    if latency != "measured":
-                        delay = latency
-                        robot.latencies.append(delay)
-                    elif cmd.solve is not None:
-                        delay = max(cmd.solve.step_s, 0.0)
-                        robot.latencies.append(delay)
-                    else:
-                        robot.instant += 1  # reports no solve: counts as instant
-                robot.delay(t, delay, cmd.ax, cmd.ay)
-            if cmd.plan:
-                robot.plan = cmd.plan  # an empty plan means the previous one still holds
-                robot.thinned_plan = _thin(cmd.plan, PLAN_SPACING_S)
-                self.recorder.plan(robot.id, t, cmd.plan)
-            if cmd.solve is not None:
-                self.solves.append(cmd.solve)
-            a = robot.spec.a_max
-            if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
-                self.stats["commands_clipped"] += 1
-            if robot.job is not None and robot.job.started_s is None and obs.goal is not None:
-                robot.job.started_s = t
-                self.recorder.event(t, "started", robot.job.job.id, robot.id, robot.job.job.station)
-            ev.succeed(cmd)
-        self._after_round(t, announcements)
-
-    def _announcements(self, t: float) -> list[Announcement]:
-        """Open jobs to offer in this round: new or handed back ones, and every `REANNOUNCE_S`
-        the ones nobody won."""
-        if not self._auction:
-            return []
-        out = []
-        for rec in self.jobs:
-            jid = rec.job.id
-            if not rec.open:
-                continue
-            if jid not in self._announce and t < self._announced_s.get(jid, -math.inf) + (
-                REANNOUNCE_S - 1e-9
-            ):
-                continue
-            self._announced_s[jid] = t
-            job = rec.job
-            print_s = rec.tasks[-1].end_s if rec.tasks else 0.0
-            out.append(Announcement(jid, job.x, job.y, print_s, job.released_s, job.due_s))
-        self._announce.clear()
-        self.stats["announcements"] += len(out)
-        return out
-
-    def _after_round(self, t: float, announcements: list[Announcement]) -> None:
-        """Bids, hand-backs and agents coming and going, as the round brought them."""
-        exchange = self.exchange
-        for hb in exchange.handbacks:
-            robot = self.robots.get(hb.robot)
-            rec = next((r for r in self.jobs if r.job.id == hb.job), None)
-            if robot is None or rec is None or rec.robot != robot.id:
-                self.stats["handbacks_rejected"] += 1
-                log.warning(
-                    "agent handed back job %s of robot %s, not its own; ignored", hb.job, hb.robot
-                )
-                continue
-            self._hand_back(robot, rec, f"handed back: {hb.reason}", blocked=True)
-        for event in exchange.take_events():
-            self._bus_event(event)
-        if announcements:
-            self._award(list(exchange.bids))
-
-    def _bus_event(self, event: BusEvent) -> None:
-        """An agent left, was lost or (re)joined: orphan its robots, or take them back."""
-        t = self.env.now
-        robots = [self.robots[r] for r in event.robots if r in self.robots]
-        if event.kind in ("lost", "left"):
-            self.faults["agents_lost" if event.kind == "lost" else "agents_left"] += 1
-            log.warning(
-                "t = %.2f s: agent %s %s (%s); braking robots %s",
-                t,
-                event.agent,
-                event.kind,
-                event.reason,
-                [r.id for r in robots],
-            )
-            for robot in robots:
-                if robot.faulted:
-                    continue
-                robot.faulted = True
-                robot.plan = robot.thinned_plan = ()
-                self.faults["robots_orphaned"] += 1
-                self.recorder.event(t, "fault", "", robot.id, event.agent)
-                for rec in [*robot.queue, *([robot.job] if robot.job else [])]:
-                    self._hand_back(robot, rec, f"agent {event.agent} {event.kind}")
-        elif event.kind == "joined":
-            for robot in robots:
-                if robot.faulted:
-                    robot.faulted = False
-                    self.faults["robots_rejoined"] += 1
-                    self.recorder.event(t, "rejoined", "", robot.id, event.agent)
-            self._request_dispatch()
-
-    def _hand_back(
-        self, robot: RobotState, rec: JobRecord, reason: str, blocked: bool = False
-    ) -> None:
-        """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
-
-        A print under way is lost with the hand-back: the next robot prints the part anew. A
-        robot that gave the job back because it is `blocked` is not given it again (a robot
-        whose agent failed may be, once it is back); when every robot has, the job fails.
-        """
-        t = self.env.now
-        if rec is robot.job:
-            robot.job = robot.queue.pop(0) if robot.queue else None
-        elif rec in robot.queue:
-            robot.queue.remove(rec)
-        else:
-            return
-        # The caps the robot printed under stay on its record for the safety check.
-        robot.past_caps.extend(rec.caps.window(-math.inf, t).pieces)
-        rec.robot = rec.assigned_s = rec.started_s = rec.arrived_s = rec.print_start_s = None
-        rec.caps = CapSchedule()
-        rec.leg = 0
-        rec.turned_rad = 0.0
-        rec.quality = None
-        rec.handbacks += 1
-        if blocked:
-            rec.handed_back_by.add(robot.id)
-        self.stats["jobs_handed_back"] += 1
-        self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
-        if rec.handbacks > self.scenario.jobs.max_handbacks or rec.handed_back_by >= set(
-            self.robots
-        ):
-            rec.failed_s, rec.failure = t, reason
-            self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
-            log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)
-            return
-        self._request_dispatch()
-
-    def _observe(self, robots: list[RobotState], t: float) -> list[Observation]:
-        radius = self.scenario.sensing_radius_m
-        priority = self._priorities(t)
-        near = (
-            self._neighbours(robots, radius, t, priority)
-            if radius > 0 and len(self.robots) > 1
-            else {}
-        )
-        out = []
-        tol = self.scenario.arrival_tolerance_m
-        for r in robots:
-            rec = r.job
-            if rec is not None and rec.shuttle and rec.printing_done(t) and rec.leg < len(rec.via):
-                rec.leg = len(rec.via)  # the print is done: on to the destination
-            goal = r.goal
-            if goal is None and r.return_home:
-                goal = r.home
-            if r.job is not None and r.job.tasks and r.job.print_start_s is None:
-                self._start_print(r, t)
-            self._watch_progress(r, goal, t, tol)
-            if r.turn_rate is not None and goal is not None and self._turning(r, goal, t, tol):
-                goal = (r.x, r.y)  # turning on the spot: hold here until the turn is done
-            caps = r.job.caps if r.job is not None else None
-            cap = None
-            window: tuple[tuple[float, float, float], ...] = ()
-            if caps:
-                window = caps.window(t, t + CAP_LOOKAHEAD_S).pieces
-                over = caps.cap_over(t, t + r.spec.period)
-                cap = None if math.isinf(over) else over
-            out.append(
-                Observation(
-                    robot=r.id,
-                    tick=r.tick,
-                    t=t,
-                    x=r.x,
-                    y=r.y,
-                    vx=r.vx,
-                    vy=r.vy,
-                    goal=goal,
-                    job=None if r.job is None else r.job.job.id,
-                    speed_cap=cap,
-                    neighbours=near.get(r.id, ()),
-                    speed_caps=window,
-                    print_end_s=None if r.job is None else r.job.print_end_s,
-                    priority=priority[r.id],
-                    blockers=r.blockers,
-                    queued=len(r.queue),
-                )
-            )
-        return out
-
-    def _priorities(self, t: float) -> dict[str, int]:
-        """Each robot's priority now: robots freed from a deadlock first, then robots with a job,
-        then the rest; smaller ids first within each class (unique, higher goes first)."""
-        n = len(self.robots)
-        return {
-            r.id: r.rank + (2 * n if t < r.boosted_until else 0) + (n if r.job is not None else 0)
-            for r in self.robots.values()
-        }
-
-    def _watch_progress(
-        self, r: RobotState, goal: tuple[float, float] | None, t: float, tol: float
-    ) -> None:
-        """Deadlock detection: a robot that has got no closer to its goal for
-        `Scenario.deadlock_after_s` while other robots stand close is blocked by them; its
-        observation names them (its controller routes round them) and its priority is raised."""
-        after = self.scenario.deadlock_after_s
-        if goal is None or after is None or r.faulted:
-            r.watched_goal, r.blockers = None, ()
-            return
-        gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
-        if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M:
-            r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, t, ()
-            return
-        if t - r.progress_s < after - 1e-9:
-            return
-        # Robots standing on this one's goal are no deadlock: it waits its turn there.
-        blockers = tuple(
-            o.id
-            for o in self.robots.values()
-            if o is not r
-            and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + BLOCKING_GAP_M
-            and math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
-        )
-        if blockers and not r.blockers:
-            self.stats["deadlocks"] += 1
-            r.boosted_until = t + after
-            self.recorder.event(
-                t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(blockers)
-            )
-            log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, list(blockers))
-        r.blockers = blockers
-
-    def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
-        """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;
-        empty when it has none or it ended more than `PLAN_STALE_S` ago."""
-        plan = r.thinned_plan
-        if not plan or plan[-1][0] < t - PLAN_STALE_S:
-            return ()
-        i = bisect.bisect_right(plan, t, key=_sample_time)
-        if i == len(plan):
-            return ((t, plan[-1][1], plan[-1][2]),)
-        if i == 0:
-            return plan
-        (t0, x0, y0), (t1, x1, y1) = plan[i - 1], plan[i]
-        f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-        return ((t, x0 + f * (x1 - x0), y0 + f * (y1 - y0)), *plan[i:])
-
-    def _neighbours(
-        self, robots: list[RobotState], radius: float, t: float, priority: dict[str, int]
-    ) -> dict[str, tuple]:
-        cells: dict[tuple[int, int], list[RobotState]] = defaultdict(list)
-        for r in self.robots.values():
-            cells[(int(r.x // radius), int(r.y // radius))].append(r)
-        out = {}
-        plans: dict[str, tuple] = {}
-        r2 = radius * radius
-        for r in robots:
-            cx, cy = int(r.x // radius), int(r.y // radius)
-            found = []
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    for o in cells.get((cx + dx, cy + dy), ()):
-                        d2 = (o.x - r.x) ** 2 + (o.y - r.y) ** 2
-                        if o is not r and d2 <= r2:
-                            found.append((d2, o.id, o))
-            found.sort()
-            near = []
-            for _, _, o in found[:MAX_NEIGHBOURS]:
-                if o.id not in plans:
-                    plans[o.id] = self._future_plan(o, t)
-                near.append(
-                    Neighbour(
-                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plans[o.id]
-                    )
-                )
-            out[r.id] = tuple(near)
-        return out
-
-    # -- turning in place ---------------------------------------------------------------------
-    def _follow_heading(self, robot: RobotState) -> None:
-        """While moving, the robot faces its direction of travel; count the angle it turns."""
-        if max(abs(robot.vx), abs(robot.vy)) <= REST_SPEED:
-            return
-        course = math.atan2(robot.vy, robot.vx)
-        if robot.heading is not None:
-            self._turned(robot, abs(_wrap(course - robot.heading)))
-        robot.heading = course
-
-    def _turning(self, robot: RobotState, goal: tuple[float, float], t: float, tol: float) -> bool:
-        """Whether `robot` must turn on the spot before it sets off towards `goal` (starting
-        the turn if it is at rest and the way to the goal leaves in another direction)."""
-        if t < robot.turning_until - 1e-9:
-            return True
-        if max(abs(robot.vx), abs(robot.vy)) > REST_SPEED:
-            return False
-        if math.hypot(goal[0] - robot.x, goal[1] - robot.y) <= tol:
-            return False
-        course = self._departure_course(robot, goal)
-        if course is None:
-            return False
-        if robot.heading is None:  # the robot starts out facing its first way
-            robot.heading = course
-            return False
-        angle = abs(_wrap(course - robot.heading))
-        if angle <= TURN_EPSILON:
-            return False
-        assert robot.turn_rate is not None
-        duration = angle / robot.turn_rate + robot.turn_settle_s
-        # Whole control periods: the robot sets off at a tick.
-        period = robot.spec.period
-        robot.turning_until = t + math.ceil(duration / period - 1e-9) * period
-        self._turned(robot, angle)
-        robot.heading = course
-        self.recorder.event(t, "turn", "" if robot.job is None else robot.job.job.id, robot.id)
-        return True
-
-    def _turned(self, robot: RobotState, angle: float) -> None:
-        robot.turned_rad += angle
-        if robot.job is not None and robot.job.printing(self.env.now):
-            robot.job.turned_rad += angle
-
-    def _departure_course(self, robot: RobotState, goal: tuple[float, float]) -> float | None:
-        """The direction of the first leg of the path from the robot to `goal`."""
-        try:
-            waypoints = self.planner_for(robot.spec).path((robot.x, robot.y), goal).waypoints
-        except NoPathError:
-            return None
-        for p in waypoints[1:]:
-            dx, dy = float(p[0]) - robot.x, float(p[1]) - robot.y
-            if math.hypot(dx, dy) > 1e-6:
-                return math.atan2(dy, dx)
-        return None
-
-    # -- jobs -----------------------------------------------------------------------------------
-    def _arrive(self, robot: RobotState) -> None:
-        """At rest at the current goal: pass a via station, or deliver once the print is done."""
-        rec = robot.job
-        assert rec is not None
-        t = self.env.now
-        if rec.leg < len(rec.via):
-            name = rec.via[rec.leg][0]
-            self.recorder.event(t, "passed", rec.job.id, robot.id, name)
-            rec.leg += 1
-            if rec.shuttle and rec.leg == len(rec.via) and not rec.printing_done(t):
-                rec.leg = 0  # round again while the print lasts
-            return
-        if rec.arrived_s is None:
-            rec.arrived_s = t
-            self.recorder.event(t, "arrived", rec.job.id, robot.id, rec.job.station)
-        if rec.print_start_s is None and rec.tasks:
-            return  # the print starts at the next tick
-        if not rec.printing_done(t):
-            return  # printing standing still at the destination until the part is done
-        self._deliver(robot)
-
-    def _deliver(self, robot: RobotState) -> None:
-        rec = robot.job
-        assert rec is not None
-        rec.delivered_s = self.env.now
-        self._judge(rec)
-        # Printing ends with the delivery: the caps after it no longer bind the robot.
-        rec.caps = rec.caps.window(-math.inf, self.env.now)
-        robot.past_caps.extend(rec.caps.pieces)
-        robot.jobs_completed += 1
-        robot.job = robot.queue.pop(0) if robot.queue else None
-        self.recorder.event(self.env.now, "delivered", rec.job.id, robot.id, rec.job.station)
-        self._request_dispatch()
-
-    def _start_print(self, robot: RobotState, t: float) -> None:
-        """Start the job's print at the robot's first tick after assignment, or, if it is moving,
-        as soon as it could have braked to rest: the velocity of the step in progress is already
-        fixed, so no controller could meet a cap that started earlier."""
-        rec = robot.job
-        assert rec is not None
-        spec = robot.spec
-        fastest = max(abs(robot.vx), abs(robot.vy))
-        steps = math.ceil(fastest / (spec.a_max * spec.period) - 1e-9) if fastest > 0 else 0
-        rec.print_start_s = t + steps * spec.period
-        rec.caps = PrintSchedule(rec.tasks, self.scenario.print_caps).caps_from(rec.print_start_s)
-
-    def _judge(self, rec: JobRecord) -> None:
-        """Predict the quality of a finished print from the robot's samples while printing."""
-        end = rec.print_end_s
-        if rec.quality is not None or end is None or rec.robot is None or self.quality is None:
-            return
-        start = rec.print_start_s
-        assert start is not None
-        tr = self.recorder.trajectories[rec.robot]
-        # Samples from the last one at or before the start to the first one at or after the end.
-        lo = max(0, bisect.bisect_right(tr.t, start + 1e-9) - 1)
-        hi = bisect.bisect_left(tr.t, end - 1e-9) + 1
-        t = np.asarray(tr.t[lo:hi], dtype=float)
-        xy = np.column_stack([tr.x[lo:hi], tr.y[lo:hi]]).astype(float).reshape(-1, 2)
-        v = np.column_stack([tr.vx[lo:hi], tr.vy[lo:hi]]).astype(float).reshape(-1, 2)
-        tasks = [PrintTask(k.kind, start + k.start_s, start + k.end_s) for k in rec.tasks]
-        if self.scenario.quality.scope == "print":
-            strictest = min((k.kind for k in tasks), key=self.quality.tolerance)
-            tasks = [PrintTask(strictest, start, end)]
-        rec.quality = self.quality.predict(tasks, t, xy, v, self.floor.spec.rough_areas)
-
-    def _request_dispatch(self) -> None:
-        if self._auction:
-            # Contract net: open jobs are announced in the next bus round and awarded from bids.
-            self._announce.update(rec.job.id for rec in self.jobs if rec.open)
-            return
-        if not self._dispatch_scheduled:
-            self._dispatch_scheduled = True
-            self.env.timeout(0).callbacks.append(self._dispatch)
-
-    def _dispatch(self, _event: simpy.Event | None) -> None:
-        if not self._dispatch_scheduled:
-            return  # already run at this instant, before a bus round
-        self._dispatch_scheduled = False
-        open_jobs = [rec for rec in self.jobs if rec.open]
-        idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
-        if not open_jobs or not idle:
-            return
-        exclude: set[str] = set()
-        for _ in range(len(self.robots)):
-            declined = self._apply_assignments(open_jobs, self.dispatcher.assign, exclude=exclude)
-            if not declined:
-                return
-            # Ask again for the jobs given to robots that had handed them back, without those.
-            exclude |= {robot for _, robot in declined}
-            open_jobs = [rec for rec, _ in declined]
-
-    def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
-        """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
-        and so are those in `exclude`)."""
-        return [
-            RobotStatus(
-                r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
-            )
-            for r in self.robots.values()
-            if not r.faulted and r.id not in exclude
-        ]
-
-    def _award(self, bids: list[Bid]) -> None:
-        """Let the dispatcher award announced jobs from this round's bids."""
-        open_jobs = {rec.job.id: rec for rec in self.jobs if rec.open}
-        valid = [
-            b
-            for b in bids
-            if b.job in open_jobs
-            # A robot that gave a job back does not win it again.
-            and b.robot not in open_jobs[b.job].handed_back_by
-            and b.robot in self.robots
-            and not self.robots[b.robot].faulted
-            and not self.robots[b.robot].queue
-        ]
-        self.stats["bids"] += len(bids)
-        if not valid:
-            return
-        wanted = sorted({b.job for b in valid})
-        self._apply_assignments(
-            [open_jobs[j] for j in wanted],
-            lambda jobs, statuses, context: self.dispatcher.award(valid, jobs, statuses, context),
-            queue=True,
-        )
-
-    def _apply_assignments(
-        self,
-        open_jobs: list[JobRecord],
-        choose: Callable[..., Any],
-        queue: bool = False,
-        exclude: AbstractSet[str] = frozenset(),
-    ) -> list[tuple[JobRecord, str]]:
-        """Ask `choose(jobs, statuses, context)` for assignments and apply the valid ones; with
-        `queue`, a busy robot may take a job behind its current one. Returns the assignments
-        declined because the robot had handed that job back."""
-        by_id = {rec.job.id: rec for rec in open_jobs}
-        context = DispatchContext(self.env.now, self.floor, self.planner)
-        name = self.scenario.dispatcher.name
-        try:
-            assignments = list(
-                choose([rec.job for rec in open_jobs], self._statuses(exclude), context)
-            )
-        except Exception:  # a plugin may raise anything; jobs stay open for the next try
-            self.stats["dispatcher_errors"] += 1
-            first = self.stats["dispatcher_errors"] == 1
-            log.log(
-                logging.WARNING if first else logging.DEBUG,
-                "dispatcher %r raised at t = %.3f s; jobs stay open",
-                name,
-                self.env.now,
-                exc_info=first,
-            )
-            return []
-        taken_jobs: set[str] = set()
-        declined: list[tuple[JobRecord, str]] = []
-        for a in assignments:
-            valid = isinstance(a, Assignment)
-            rec = by_id.get(a.job) if valid else None
-            robot = self.robots.get(a.robot) if valid else None
-            # A robot takes a job when idle, or (auctions) behind its current one if none waits.
-            busy = robot is not None and (
-                robot.faulted or (robot.job is not None and (not queue or bool(robot.queue)))
-            )
-            if rec is None or robot is None or busy or a.job in taken_jobs:
-                self.stats["assignments_rejected"] += 1
-                log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
-                continue
-            if robot.id in rec.handed_back_by:
-                # It gave this job back as blocked: the job waits for another robot.
-                self.stats["assignments_declined"] += 1
-                declined.append((rec, robot.id))
-                continue
-            taken_jobs.add(a.job)
-            rec.robot, rec.assigned_s = robot.id, self.env.now
-            self._announce.discard(rec.job.id)
-            if robot.job is None:
-                robot.job = rec
-            else:
-                robot.queue.append(rec)
-            self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
-        return declined
 
     # -- running --------------------------------------------------------------------------------
     def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
@@ -1122,7 +268,7 @@ class World:
         self._ran = True
         duration = self.scenario.duration_s
         wall0 = time.perf_counter()
-        self.env.process(self._release_jobs())
+        self.env.process(self.lifecycle.release())
         for robot in self.robots.values():
             self.env.process(self._robot(robot))
         if progress is not None:
@@ -1146,124 +292,32 @@ class World:
             self._tmpdir.cleanup()
             self._tmpdir = None
 
-    def _progress(self, progress: Callable[[float], None], duration: float):
+    def _progress(
+        self, progress: Callable[[float], None], duration: float
+    ) -> Generator[simpy.Event, None, None]:
+        """Report the simulated time about 200 times over the run (at most once per tick)."""
         step = max(duration / 200.0, min(r.spec.period for r in self.robots.values()))
         while True:
             progress(self.env.now)
             yield self.env.timeout(step)
 
     def _summarise(self, wall_time: float) -> RunResult:
-        sc = self.scenario
-        trajectories = {rid: tr.arrays() for rid, tr in self.recorder.trajectories.items()}
-        radii = {rid: r.spec.radius for rid, r in self.robots.items()}
-        # Caps that are only advice (`[print] enforce = false`) are not limits to check.
-        enforced = sc.enforce_print_caps
-        caps = {rid: r.caps() if enforced else CapSchedule() for rid, r in self.robots.items()}
-        safety = SafetyChecker(self.floor).check(trajectories, radii, caps)
-        for rec in self.jobs:  # prints that finished but were not delivered by the end
-            if rec.print_end_s is not None and rec.print_end_s <= self.env.now + 1e-9:
-                self._judge(rec)
-        completed = [rec for rec in self.jobs if rec.delivered_s is not None]
-        failed = [rec for rec in self.jobs if rec.failed_s is not None]
-        # No job may be lost: every released job is delivered, given up, held by a robot
-        # (current or queued) or open for the dispatcher, and exactly one of these. Counted from
-        # the robots' side, so a job that fell between them shows.
-        held = [rec for r in self.robots.values() for rec in (r.job, *r.queue) if rec is not None]
-        waiting = [rec for rec in self.jobs if rec.open]
-        in_progress = held + waiting
-        states = [id(rec) for rec in (*completed, *failed, *in_progress)]
-        accounted = len(states) == len(set(states)) == len(self.jobs)
-        if not accounted:
-            log.error(
-                "job accounting broken: %d released != %d completed + %d failed + %d in progress",
-                len(self.jobs),
-                len(completed),
-                len(failed),
-                len(in_progress),
-            )
-        good = [rec for rec in completed if rec.quality is None or rec.quality.passed]
-        now = float(self.env.now)
-        late = sum(
-            1
-            for rec in self.jobs
-            if rec.late
-            or (rec.delivered_s is None and rec.job.due_s is not None and now > rec.job.due_s)
+        safety = check_safety(
+            self.floor, self.robots, self.recorder, self.scenario.enforce_print_caps
         )
-        lead = [rec.lead_time_s for rec in completed]
-        per_robot = [
-            {
-                "id": rid,
-                "distance_m": round(self.recorder.trajectories[rid].distance(), 6),
-                "jobs_completed": r.jobs_completed,
-                "turned_rad": round(r.turned_rad, 6),
-                "radius_m": r.spec.radius,
-            }
-            for rid, r in self.robots.items()
-        ]
-        hours = sc.duration_s / 3600.0
-        summary = {
-            "scenario": sc.name,
-            "scenario_file": sc.source,
-            "map": str(self.floor.source),
-            "seed": sc.seed,
-            "controller": sc.controller.name,
-            "dispatcher": sc.dispatcher.name,
-            "robots": len(self.robots),
-            "sim_time_s": float(self.env.now),
-            "wall_time_s": round(wall_time, 3),
-            "jobs": {
-                "released": len(self.jobs),
-                "completed": len(completed),
-                # Given up after too many hand-backs (`[jobs] max_handbacks`), and the rest:
-                # released == completed + failed + in_progress, checked in `accounted`.
-                "failed": len(failed),
-                "in_progress": len(in_progress),
-                "accounted": accounted,
-                "handed_back": sum(rec.handbacks for rec in self.jobs),
-                "assigned_open": sum(
-                    1 for rec in self.jobs if rec.robot and rec.delivered_s is None
-                ),
-                "unassigned": sum(1 for rec in self.jobs if rec.open),
-                # Delivered parts that passed the quality prediction (jobs with nothing to
-                # print count as good), delivered parts that did not, and jobs delivered after
-                # their due time or still out when it passed.
-                "good": len(good),
-                "defective": len(completed) - len(good),
-                "late": late,
-            },
-            "throughput_per_h": round(len(completed) / hours, 6) if hours > 0 else 0.0,
-            "throughput_good_per_h": round(len(good) / hours, 6) if hours > 0 else 0.0,
-            "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
-            "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
-            "violations": dict(safety.counts),
-            "faults": dict(self.faults),
-            "print_caps": {
-                "caps": dict(sorted(sc.print_caps.items())),
-                "enforced": sc.enforce_print_caps,
-            },
-            "quality": self._quality_summary(),
-            "solver": self._solver_summary(),
-            "latency": _latency_summary(sc.latency, self.robots.values()),
-            "per_robot": per_robot,
-            "engine": {
-                "bus_rounds": self._round,
-                "robot_steps": sum(r.tick for r in self.robots.values()),
-                **{k: int(v) for k, v in sorted(self.stats.items())},
-                **{f"bus_{k}": int(v) for k, v in sorted(self.exchange.stats.items())},
-            },
-            "digest": self.recorder.digest(),
-        }
-        if sc.jobs.mode == "scripted":
-            # Point-to-point runs: when each robot reached the destination of its last trip
-            # (a print may keep it there longer); None while a trip it was given is still open.
-            last: dict[str, float | None] = dict.fromkeys(self.robots)
-            arrived = [rec for rec in self.jobs if rec.arrived_s is not None]
-            for rec in arrived:
-                last[rec.robot] = max(last[rec.robot] or 0.0, rec.arrived_s)
-            for rec in self.jobs:
-                if rec.robot is not None and rec.arrived_s is None:
-                    last[rec.robot] = None
-            summary["arrivals"] = last
+        self.lifecycle.judge_finished()
+        summary = summarise(
+            self.scenario,
+            self.floor,
+            self.robots,
+            self.jobs,
+            self.recorder,
+            safety,
+            now=float(self.env.now),
+            wall_time_s=wall_time,
+            bus_rounds=self.rounds.count,
+            bus_stats=self.exchange.stats,
+        )
         return RunResult(summary, safety, list(self.jobs))
 
     def write(self, out: Path) -> None:
@@ -1281,166 +335,28 @@ class World:
         )
 
     def task_rows(self) -> list[tuple[str, str, str, float, float]]:
-        """Every print task that started: (robot, job, kind, start_s, end_s) rows on the clock,
-        cut at delivery."""
-        rows = []
-        for rec in self.jobs:
-            if rec.robot is None or rec.print_start_s is None:
-                continue
-            stop = math.inf if rec.delivered_s is None else rec.delivered_s
-            for task in rec.tasks:
-                start = rec.print_start_s + task.start_s
-                end = min(rec.print_start_s + task.end_s, stop)
-                if end > start:
-                    rows.append((rec.robot, rec.job.id, task.kind, start, end))
-        return rows
+        """Every print task that started, as ``tasks.csv`` rows (see `summary.task_rows`)."""
+        return task_rows(self.jobs)
 
     def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
-        """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows."""
-        caps = self.scenario.print_caps
-        return [(*row, caps[row[2]]) for row in self.task_rows() if row[2] in caps]
-
-    def _quality_summary(self) -> dict[str, Any]:
-        """Outcomes of the prints judged so far and the largest predicted error."""
-        judged = [rec.quality for rec in self.jobs if rec.quality is not None]
-        outcomes: dict[str, int] = defaultdict(int)
-        for q in judged:
-            outcomes[q.outcome] += 1
-        return {
-            "prints": len(judged),
-            "outcomes": dict(sorted(outcomes.items())),
-            "max_error_mm": round(max(q.error_mm for q in judged), 6) if judged else None,
-        }
+        """Every print cap a robot was under, as ``caps.csv`` rows (see `summary.cap_rows`)."""
+        return cap_rows(self.jobs, self.scenario.print_caps)
 
     def job_rows(self) -> list[dict[str, Any]]:
-        """One row per job for ``jobs.csv`` (None: not happened, or not printed)."""
-        rows = []
-        for rec in self.jobs:
-            q = rec.quality
-            rows.append(
-                {
-                    "id": rec.job.id,
-                    "part": rec.job.part,
-                    "robot": rec.robot,
-                    "released_s": rec.job.released_s,
-                    "started_s": rec.print_start_s
-                    if rec.print_start_s is not None
-                    else rec.started_s,
-                    "finished_s": rec.print_end_s
-                    if rec.print_end_s is not None and rec.printing_done(self.env.now)
-                    else None,
-                    "delivered_s": rec.delivered_s,
-                    "due_s": rec.job.due_s,
-                    "predicted_error_mm": None if q is None else q.error_mm,
-                    "passed": None if q is None else q.passed,
-                    "outcome": None if q is None else q.outcome,
-                }
-            )
-        return rows
+        """One row per job for ``jobs.csv`` (see `summary.job_rows`)."""
+        return job_rows(self.jobs, self.env.now)
 
-    def _solver_summary(self) -> dict[str, Any]:
-        """Statistics of the `SolveReport`s controllers attached to their commands."""
-        solves = self.solves
-        outcomes: dict[str, int] = defaultdict(int)
-        for s in solves:
-            outcomes[s.outcome.value] += 1
-        out: dict[str, Any] = {
-            "steps": len(solves),
-            "median_ms": None,
-            "p95_ms": None,
-            "max_ms": None,
-            "fallbacks": int(self.stats.get("commands_fallback", 0)),
-            "termination": dict(sorted(outcomes.items())),
-        }
-        if solves:
-            solver = np.array([s.solver_s for s in solves]) * 1e3
-            step = np.array([s.step_s for s in solves]) * 1e3
-            out.update(_spread_ms(solver))
-            out.update(
-                step_median_ms=round(float(np.median(step)), 3),
-                step_p95_ms=round(float(np.percentile(step, 95)), 3),
-                # The modelling layer's overhead: whole controller step over solver time.
-                overhead_ratio=round(float(step.sum() / max(solver.sum(), 1e-12)), 3),
-            )
-        return out
+    @property
+    def stats(self) -> dict[str, int]:
+        """The engine's counters (summary.json's ``engine`` object), kept by the recorder."""
+        return self.recorder.stats
 
+    @property
+    def solves(self) -> list[SolveReport]:
+        """The solve reports controllers attached to their commands, kept by the recorder."""
+        return self.recorder.solves
 
-def _spread_ms(ms: np.ndarray) -> dict[str, float]:
-    """``median_ms``, ``p95_ms`` and ``max_ms`` of times in ms, as summary.json writes them."""
-    return {
-        "median_ms": round(float(np.median(ms)), 3),
-        "p95_ms": round(float(np.percentile(ms, 95)), 3),
-        "max_ms": round(float(ms.max()), 3),
-    }
-
-
-def _latency_summary(mode: Latency, robots: Iterable[RobotState]) -> dict[str, Any]:
-    """The ``latency`` object of summary.json: the mode and, over the controllers' commands
-    that waited (every one with a fixed latency; those with a solve report when measured), how
-    many, the median, p95 and largest latency, and how many were `late` (a latency of at least
-    the robot's period: the command missed its own step); `instant` counts the commands a
-    measured run applied at once (no solve report). The keys are the same in every mode."""
-    robots = list(robots)
-    out: dict[str, Any] = {
-        "mode": "none" if mode is None else "measured" if mode == "measured" else "fixed",
-        "commands": 0,
-        "median_ms": None,
-        "p95_ms": None,
-        "max_ms": None,
-        "late": 0,
-        "instant": sum(r.instant for r in robots),
-    }
-    per_robot = [
-        (np.frombuffer(r.latencies, dtype=float), r.spec.period) for r in robots if r.latencies
-    ]
-    if mode is None or not per_robot:
-        return out
-    ms = np.concatenate([s for s, _ in per_robot]) * 1e3
-    out.update(_spread_ms(ms))
-    out.update(
-        commands=int(ms.size),
-        late=sum(int(np.count_nonzero(s >= period - EFFECT_EPS_S)) for s, period in per_robot),
-    )
-    return out
-
-
-def _at_rest_near(robot: RobotState, goal: tuple[float, float] | None, tol: float) -> bool:
-    return (
-        goal is not None
-        and abs(robot.vx) <= REST_SPEED
-        and abs(robot.vy) <= REST_SPEED
-        and math.hypot(robot.x - goal[0], robot.y - goal[1]) <= tol
-    )
-
-
-def _thin(
-    plan: tuple[tuple[float, float, float], ...], spacing: float
-) -> tuple[tuple[float, float, float], ...]:
-    """`plan` with samples at least `spacing` seconds apart (the first and last kept)."""
-    if len(plan) <= 2:
-        return plan
-    out = [plan[0]]
-    for sample in plan[1:-1]:
-        if sample[0] - out[-1][0] >= spacing - 1e-9:
-            out.append(sample)
-    if plan[-1][0] - out[-1][0] < spacing / 2 and len(out) > 1:
-        out.pop()  # keep the last sample, not one a moment before it
-    out.append(plan[-1])
-    return tuple(out)
-
-
-def _sample_time(sample: tuple[float, float, float]) -> float:
-    return sample[0]
-
-
-def _wrap(angle: float) -> float:
-    """`angle` folded into [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _quality_model(scenario: Scenario) -> QualityModel | None:
-    """The scenario's print-quality model (None when no job prints anything)."""
-    jobs = scenario.jobs
-    if not (scenario.parts or any(j.tasks for j in jobs.scripted)):
-        return None
-    return scenario.quality.model()
+    @property
+    def faults(self) -> dict[str, int]:
+        """Faults seen on the bus (agents lost, left, robots orphaned, rejoined)."""
+        return self.recorder.faults

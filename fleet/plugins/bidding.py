@@ -2,7 +2,7 @@
 
 The engine announces each open job on the bus (`fleet.plugins.Announcement`); every robot's
 agent answers with a bid (`Controller.bid`, by default `estimate_completion`); the dispatcher
-(`fleet_plugins.auction`) awards the job. See `fleet.engine.world` for the engine's side.
+(`fleet_plugins.auction`) awards the job. See `fleet.engine.dispatch` for the engine's side.
 """
 
 from __future__ import annotations

@@ -1,0 +1,258 @@
+"""Dispatch: the engine's side of giving jobs to robots.
+
+The dispatcher plugin chooses; this collaborator asks it when a job is released or a robot is
+freed (assigners) or announces open jobs on the bus and lets it award them from the bids
+(auctions), checks every assignment it makes before applying it, and takes jobs back from robots
+that hand them back or lose their agent, offering them again until a job has been handed back
+too often.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Mapping
+from collections.abc import Set as AbstractSet
+from typing import Any
+
+import simpy
+
+from fleet.engine.jobs import JobRecord
+from fleet.engine.motion import RobotState
+from fleet.engine.recorder import Recorder
+from fleet.floor import Floor
+from fleet.paths import PathPlanner
+from fleet.plugins import Announcement, Assignment, Bid, DispatchContext, RobotStatus
+from fleet.printing import CapSchedule
+from fleet.scenario import Scenario
+
+__all__ = ["Dispatch", "REANNOUNCE_S"]
+
+log = logging.getLogger("fleet.engine")
+
+#: How often (s) open jobs nobody won are announced again (auctions).
+REANNOUNCE_S = 5.0
+
+
+class Dispatch:
+    """Hands the run's open jobs to its robots through the scenario's dispatcher plugin.
+
+    Parameters
+    ----------
+    dispatcher:
+        The loaded plugin: an assigner (``assign``) or, when it ``announces``, an auctioneer
+        (``award``).
+    jobs:
+        The run's job records, shared with the rest of the engine (released jobs are appended).
+    """
+
+    def __init__(
+        self,
+        env: simpy.Environment,
+        scenario: Scenario,
+        floor: Floor,
+        planner: PathPlanner,
+        robots: Mapping[str, RobotState],
+        jobs: list[JobRecord],
+        recorder: Recorder,
+        dispatcher: Any,
+    ) -> None:
+        self.env = env
+        self.scenario = scenario
+        self.floor = floor
+        self.planner = planner
+        self.robots = robots
+        self.jobs = jobs
+        self.recorder = recorder
+        self.dispatcher = dispatcher
+        # Duck-typed dispatchers (not subclassing Dispatcher) are plain assigners.
+        self._auction = bool(getattr(dispatcher, "announces", False))
+        self._scheduled = False
+        #: Jobs to announce at the next bus round (auctions), and when each was last announced.
+        self._announce: set[str] = set()
+        self._announced_s: dict[str, float] = {}
+
+    def request(self) -> None:
+        """Ask for a dispatch: at this instant (assigners), or at the next bus round (auctions)."""
+        if self._auction:
+            # Contract net: open jobs are announced in the next bus round and awarded from bids.
+            self._announce.update(rec.job.id for rec in self.jobs if rec.open)
+            return
+        if not self._scheduled:
+            self._scheduled = True
+            self.env.timeout(0).callbacks.append(self._run)
+
+    def run_pending(self) -> None:
+        """Run a dispatch requested at this instant now, ahead of its callback (which then
+        finds nothing to do)."""
+        if self._scheduled:
+            self._run(None)
+
+    def _run(self, _event: simpy.Event | None) -> None:
+        """Ask the assigner to give the open jobs to the idle robots (the SimPy callback of
+        `request`)."""
+        if not self._scheduled:
+            return  # already run at this instant, before a bus round
+        self._scheduled = False
+        open_jobs = [rec for rec in self.jobs if rec.open]
+        idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
+        if not open_jobs or not idle:
+            return
+        exclude: set[str] = set()
+        for _ in range(len(self.robots)):
+            declined = self._apply_assignments(open_jobs, self.dispatcher.assign, exclude=exclude)
+            if not declined:
+                return
+            # Ask again for the jobs given to robots that had handed them back, without those.
+            exclude |= {robot for _, robot in declined}
+            open_jobs = [rec for rec, _ in declined]
+
+    def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
+        """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
+        and so are those in `exclude`)."""
+        return [
+            RobotStatus(
+                r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
+            )
+            for r in self.robots.values()
+            if not r.faulted and r.id not in exclude
+        ]
+
+    def announcements(self, t: float) -> list[Announcement]:
+        """Open jobs to offer in this round: new or handed back ones, and every `REANNOUNCE_S`
+        the ones nobody won."""
+        if not self._auction:
+            return []
+        out = []
+        for rec in self.jobs:
+            jid = rec.job.id
+            if not rec.open:
+                continue
+            if jid not in self._announce and t < self._announced_s.get(jid, -math.inf) + (
+                REANNOUNCE_S - 1e-9
+            ):
+                continue
+            self._announced_s[jid] = t
+            job = rec.job
+            print_s = rec.tasks[-1].end_s if rec.tasks else 0.0
+            out.append(Announcement(jid, job.x, job.y, print_s, job.released_s, job.due_s))
+        self._announce.clear()
+        self.recorder.stats["announcements"] += len(out)
+        return out
+
+    def award(self, bids: list[Bid]) -> None:
+        """Let the dispatcher award announced jobs from this round's bids."""
+        open_jobs = {rec.job.id: rec for rec in self.jobs if rec.open}
+        valid = [
+            b
+            for b in bids
+            if b.job in open_jobs
+            # A robot that gave a job back does not win it again.
+            and b.robot not in open_jobs[b.job].handed_back_by
+            and b.robot in self.robots
+            and not self.robots[b.robot].faulted
+            and not self.robots[b.robot].queue
+        ]
+        self.recorder.stats["bids"] += len(bids)
+        if not valid:
+            return
+        wanted = sorted({b.job for b in valid})
+        self._apply_assignments(
+            [open_jobs[j] for j in wanted],
+            lambda jobs, statuses, context: self.dispatcher.award(valid, jobs, statuses, context),
+            queue=True,
+        )
+
+    def _apply_assignments(
+        self,
+        open_jobs: list[JobRecord],
+        choose: Callable[..., Any],
+        queue: bool = False,
+        exclude: AbstractSet[str] = frozenset(),
+    ) -> list[tuple[JobRecord, str]]:
+        """Ask `choose(jobs, statuses, context)` for assignments and apply the valid ones; with
+        `queue`, a busy robot may take a job behind its current one. Returns the assignments
+        declined because the robot had handed that job back."""
+        by_id = {rec.job.id: rec for rec in open_jobs}
+        context = DispatchContext(self.env.now, self.floor, self.planner)
+        name = self.scenario.dispatcher.name
+        try:
+            assignments = list(
+                choose([rec.job for rec in open_jobs], self._statuses(exclude), context)
+            )
+        except Exception:  # a plugin may raise anything; jobs stay open for the next try
+            self.recorder.stats["dispatcher_errors"] += 1
+            first = self.recorder.stats["dispatcher_errors"] == 1
+            log.log(
+                logging.WARNING if first else logging.DEBUG,
+                "dispatcher %r raised at t = %.3f s; jobs stay open",
+                name,
+                self.env.now,
+                exc_info=first,
+            )
+            return []
+        taken_jobs: set[str] = set()
+        declined: list[tuple[JobRecord, str]] = []
+        for a in assignments:
+            valid = isinstance(a, Assignment)
+            rec = by_id.get(a.job) if valid else None
+            robot = self.robots.get(a.robot) if valid else None
+            # A robot takes a job when idle, or (auctions) behind its current one if none waits.
+            busy = robot is not None and (
+                robot.faulted or (robot.job is not None and (not queue or bool(robot.queue)))
+            )
+            if rec is None or robot is None or busy or a.job in taken_jobs:
+                self.recorder.stats["assignments_rejected"] += 1
+                log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
+                continue
+            if robot.id in rec.handed_back_by:
+                # It gave this job back as blocked: the job waits for another robot.
+                self.recorder.stats["assignments_declined"] += 1
+                declined.append((rec, robot.id))
+                continue
+            taken_jobs.add(a.job)
+            rec.robot, rec.assigned_s = robot.id, self.env.now
+            self._announce.discard(rec.job.id)
+            if robot.job is None:
+                robot.job = rec
+            else:
+                robot.queue.append(rec)
+            self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
+        return declined
+
+    def hand_back(
+        self, robot: RobotState, rec: JobRecord, reason: str, blocked: bool = False
+    ) -> None:
+        """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
+
+        A print under way is lost with the hand-back: the next robot prints the part anew. A
+        robot that gave the job back because it is `blocked` is not given it again (a robot
+        whose agent failed may be, once it is back); when every robot has, the job fails.
+        """
+        t = self.env.now
+        if rec is robot.job:
+            robot.job = robot.queue.pop(0) if robot.queue else None
+        elif rec in robot.queue:
+            robot.queue.remove(rec)
+        else:
+            return
+        # The caps the robot printed under stay on its record for the safety check.
+        robot.past_caps.extend(rec.caps.window(-math.inf, t).pieces)
+        rec.robot = rec.assigned_s = rec.started_s = rec.arrived_s = rec.print_start_s = None
+        rec.caps = CapSchedule()
+        rec.leg = 0
+        rec.turned_rad = 0.0
+        rec.quality = None
+        rec.handbacks += 1
+        if blocked:
+            rec.handed_back_by.add(robot.id)
+        self.recorder.stats["jobs_handed_back"] += 1
+        self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
+        if rec.handbacks > self.scenario.jobs.max_handbacks or rec.handed_back_by >= set(
+            self.robots
+        ):
+            rec.failed_s, rec.failure = t, reason
+            self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
+            log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)
+            return
+        self.request()

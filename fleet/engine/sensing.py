@@ -1,0 +1,217 @@
+"""Sensing: what each robot observes at its tick.
+
+An observation holds the robot's state, its goal, the print caps ahead, its priority and its
+neighbours: the nearest robots within the sensing radius, each with the part of its latest plan
+still ahead (thinned to `PLAN_SPACING_S`). Sensing also watches each robot's progress towards its
+goal: a robot that has made none for `Scenario.deadlock_after_s` with robots close by is blocked
+by them; its observation names them and its priority is raised.
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+from collections import defaultdict
+from collections.abc import Mapping
+
+from fleet.engine.motion import RobotState, Turning
+from fleet.engine.recorder import Recorder
+from fleet.plugins import CAP_LOOKAHEAD_S, Neighbour, Observation
+from fleet.scenario import Scenario
+
+__all__ = ["Sensing", "thin_plan", "PLAN_SPACING_S"]
+
+log = logging.getLogger("fleet.engine")
+
+#: At most this many neighbours (the nearest) go into one observation.
+MAX_NEIGHBOURS = 8
+#: A robot that got no closer to its goal than this (m) over `Scenario.deadlock_after_s` has
+#: made no progress.
+PROGRESS_M = 0.25
+#: Robots closer than the sum of their radii plus this (m) to a stalled robot may block it.
+BLOCKING_GAP_M = 1.0
+#: How long (s) a plan stays news: a neighbour whose latest plan ended longer ago than this is
+#: shown without one (assume it stays where it is).
+PLAN_STALE_S = 1.0
+#: Neighbours see plans thinned to samples this far apart (s): each plan goes into up to
+#: `MAX_NEIGHBOURS` observations, and between samples a robot at most 0.5 m/s^2 strays
+#: a * dt^2 / 8 = 0.016 m from the chord.
+PLAN_SPACING_S = 0.5
+
+
+class Sensing:
+    """Builds the robots' observations; `turning` holds a robot that turns on the spot."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        robots: Mapping[str, RobotState],
+        recorder: Recorder,
+        turning: Turning,
+    ) -> None:
+        self.scenario = scenario
+        self.robots = robots
+        self.recorder = recorder
+        self.turning = turning
+
+    def observe(self, robots: list[RobotState], t: float) -> list[Observation]:
+        """The observations of `robots` (due at `t`), from one snapshot of the floor."""
+        radius = self.scenario.sensing_radius_m
+        priority = self._priorities(t)
+        near = (
+            self._neighbours(robots, radius, t, priority)
+            if radius > 0 and len(self.robots) > 1
+            else {}
+        )
+        out = []
+        tol = self.scenario.arrival_tolerance_m
+        for r in robots:
+            goal = r.goal
+            if goal is None and r.return_home:
+                goal = r.home
+            self._watch_progress(r, goal, t, tol)
+            if (
+                r.turn_rate is not None
+                and goal is not None
+                and self.turning.turns_first(r, goal, t, tol)
+            ):
+                goal = (r.x, r.y)  # turning on the spot: hold here until the turn is done
+            caps = r.job.caps if r.job is not None else None
+            cap = None
+            window: tuple[tuple[float, float, float], ...] = ()
+            if caps:
+                window = caps.window(t, t + CAP_LOOKAHEAD_S).pieces
+                over = caps.cap_over(t, t + r.spec.period)
+                cap = None if math.isinf(over) else over
+            out.append(
+                Observation(
+                    robot=r.id,
+                    tick=r.tick,
+                    t=t,
+                    x=r.x,
+                    y=r.y,
+                    vx=r.vx,
+                    vy=r.vy,
+                    goal=goal,
+                    job=None if r.job is None else r.job.job.id,
+                    speed_cap=cap,
+                    neighbours=near.get(r.id, ()),
+                    speed_caps=window,
+                    print_end_s=None if r.job is None else r.job.print_end_s,
+                    priority=priority[r.id],
+                    blockers=r.blockers,
+                    queued=len(r.queue),
+                )
+            )
+        return out
+
+    def _priorities(self, t: float) -> dict[str, int]:
+        """Each robot's priority now: robots freed from a deadlock first, then robots with a job,
+        then the rest; smaller ids first within each class (unique, higher goes first)."""
+        n = len(self.robots)
+        return {
+            r.id: r.rank + (2 * n if t < r.boosted_until else 0) + (n if r.job is not None else 0)
+            for r in self.robots.values()
+        }
+
+    def _watch_progress(
+        self, r: RobotState, goal: tuple[float, float] | None, t: float, tol: float
+    ) -> None:
+        """Deadlock detection: a robot that has got no closer to its goal for
+        `Scenario.deadlock_after_s` while other robots stand close is blocked by them; its
+        observation names them (its controller routes round them) and its priority is raised."""
+        after = self.scenario.deadlock_after_s
+        if goal is None or after is None or r.faulted:
+            r.watched_goal, r.blockers = None, ()
+            return
+        gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
+        if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M:
+            r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, t, ()
+            return
+        if t - r.progress_s < after - 1e-9:
+            return
+        # Robots standing on this one's goal are no deadlock: it waits its turn there.
+        blockers = tuple(
+            o.id
+            for o in self.robots.values()
+            if o is not r
+            and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + BLOCKING_GAP_M
+            and math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
+        )
+        if blockers and not r.blockers:
+            self.recorder.stats["deadlocks"] += 1
+            r.boosted_until = t + after
+            self.recorder.event(
+                t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(blockers)
+            )
+            log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, list(blockers))
+        r.blockers = blockers
+
+    def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
+        """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;
+        empty when it has none or it ended more than `PLAN_STALE_S` ago."""
+        plan = r.thinned_plan
+        if not plan or plan[-1][0] < t - PLAN_STALE_S:
+            return ()
+        i = bisect.bisect_right(plan, t, key=_sample_time)
+        if i == len(plan):
+            return ((t, plan[-1][1], plan[-1][2]),)
+        if i == 0:
+            return plan
+        (t0, x0, y0), (t1, x1, y1) = plan[i - 1], plan[i]
+        f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        return ((t, x0 + f * (x1 - x0), y0 + f * (y1 - y0)), *plan[i:])
+
+    def _neighbours(
+        self, robots: list[RobotState], radius: float, t: float, priority: dict[str, int]
+    ) -> dict[str, tuple]:
+        """Each of `robots`' nearest robots within `radius` (at most `MAX_NEIGHBOURS`), with
+        their plans from `t` on."""
+        cells: dict[tuple[int, int], list[RobotState]] = defaultdict(list)
+        for r in self.robots.values():
+            cells[(int(r.x // radius), int(r.y // radius))].append(r)
+        out = {}
+        plans: dict[str, tuple] = {}
+        r2 = radius * radius
+        for r in robots:
+            cx, cy = int(r.x // radius), int(r.y // radius)
+            found = []
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    for o in cells.get((cx + dx, cy + dy), ()):
+                        d2 = (o.x - r.x) ** 2 + (o.y - r.y) ** 2
+                        if o is not r and d2 <= r2:
+                            found.append((d2, o.id, o))
+            found.sort()
+            near = []
+            for _, _, o in found[:MAX_NEIGHBOURS]:
+                if o.id not in plans:
+                    plans[o.id] = self._future_plan(o, t)
+                near.append(
+                    Neighbour(
+                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plans[o.id]
+                    )
+                )
+            out[r.id] = tuple(near)
+        return out
+
+
+def thin_plan(
+    plan: tuple[tuple[float, float, float], ...], spacing: float
+) -> tuple[tuple[float, float, float], ...]:
+    """`plan` with samples at least `spacing` seconds apart (the first and last kept)."""
+    if len(plan) <= 2:
+        return plan
+    out = [plan[0]]
+    for sample in plan[1:-1]:
+        if sample[0] - out[-1][0] >= spacing - 1e-9:
+            out.append(sample)
+    if plan[-1][0] - out[-1][0] < spacing / 2 and len(out) > 1:
+        out.pop()  # keep the last sample, not one a moment before it
+    out.append(plan[-1])
+    return tuple(out)
+
+
+def _sample_time(sample: tuple[float, float, float]) -> float:
+    return sample[0]
