@@ -410,7 +410,7 @@ MALFORMED = [
         "speed_caps[1] = [1.0, 3.0, 0.5]: pieces must be sorted, non-overlapping",
     ),
     (raw(act_with(solve=["great", 0.1, 0.2])), "solve[0] = 'great': must be one of 'optimal'"),
-    (raw(act_with(solve=["optimal", -0.1, 0.2])), "solve = ['optimal', -0.1, 0.2]: times"),
+    (raw(act_with(solve=["optimal", -0.1, 0.2])), "solve[1] = -0.1: must be >= 0"),
     (raw(act_with(solve=["optimal", 0.1])), "solve = ['optimal', 0.1]: must be null or"),
     (raw({k: v for k, v in act_with().items()} | {"version": 1}), "unsupported schema version"),
 ]
