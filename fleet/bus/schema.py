@@ -537,6 +537,10 @@ def command_to_wire(c: Command) -> dict[str, Any]:
             raise _fail("command.solve", solve, "must be None or a SolveReport")
         solve = [solve.outcome.value, _plain(solve.solver_s), _plain(solve.step_s)]
     plan = c.plan
+    if isinstance(plan, list | tuple) and not _SAMPLE_TYPES.issuperset(map(type, plan)):
+        # Exactly tuples or lists, as documented for plugins: msgspec would take a namedtuple.
+        i, p = next((i, p) for i, p in enumerate(plan) if type(p) not in _SAMPLE_TYPES)
+        raise _fail(f"command.plan[{i}]", p, "must be a [t, x, y] triple")
     wire = {
         "ax": _plain(c.ax),
         "ay": _plain(c.ay),
@@ -550,9 +554,7 @@ def command_to_wire(c: Command) -> dict[str, Any]:
         # Most plans hold plain floats already; only a failing one is copied with its numbers
         # made plain, then checked again (and reported if still wrong).
         if isinstance(plan, list | tuple):
-            wire["plan"] = [
-                tuple(map(_plain, p)) if isinstance(p, list | tuple) else p for p in plan
-            ]
+            wire["plan"] = [tuple(map(_plain, p)) for p in plan]
         _checked(wire, _Command, "", "command")
     return wire
 
@@ -627,6 +629,7 @@ _ANNOUNCEMENT_ATTRIBUTES = _by_attribute(_Announcement, Announcement)
 _BID_ATTRIBUTES = _by_attribute(_Bid, Bid)
 _HANDBACK_ATTRIBUTES = _by_attribute(_Handback, Handback)
 _STATUS_NAMES = ", ".join(repr(s.value) for s in ControlStatus)
+_SAMPLE_TYPES = frozenset((tuple, list))
 
 
 # --- decoding ------------------------------------------------------------------------------------
