@@ -26,9 +26,9 @@ The schema is written once, as msgspec types (the ``_Wire`` structs and the arra
 below), and msgspec checks it in C: `decode` parses and validates a frame in one pass and
 returns OBSERVE and ACT bodies converted to `fleet.plugins` objects (`Observation`,
 `Announcement`, `Command`, `Bid`, `Handback`); `encode` converts the body to the same types
-before writing it, so nothing goes out that `decode` would refuse (msgspec would write NaN as
+before writing it, so nothing goes out that breaks them (msgspec alone would write NaN as
 ``null``). The few rules a type cannot state (radius > 0, sorted cap pieces, unique robots)
-are checked while converting.
+`decode` checks while converting.
 
 A rejected message raises `MessageError` saying the message's kind and sender, the field's
 full path and the bad value quoted, e.g. ``OBSERVE message from 'exchange':
