@@ -12,29 +12,46 @@ tuples travel as arrays: a goal is ``[x, y]``, a neighbour
 piece ``[start_s, end_s, cap]``, a solve report ``[outcome, solver_s, step_s]``, an
 announcement ``[job, x, y, print_s, released_s, due_s]``, a bid ``[job, robot, estimate_s]``
 and a handback ``[robot, job, reason]``. Every field is always present (``null`` where the
-dataclass holds None), so a message either matches the schema exactly or is rejected.
+dataclass holds None), so a message either matches the schema exactly or is rejected. Numbers
+are finite; ids (robots, jobs, senders) are non-empty strings; ticks, ``queued``, cap values,
+``print_s``, bid estimates and solve times are >= 0, a neighbour's radius > 0, speed-cap
+pieces sorted and non-overlapping, and a HELLO's (WELCOME's) robots unique.
 
 History: version 2 added ``speed_caps`` and ``solve``, version 3 ``print_end_s``; version 4
 (contract net and liveness) added the observation's ``priority``, ``blockers`` and ``queued``,
 the neighbour's radius, priority and plan, OBSERVE's ``announcements``, ACT's ``bids`` and
 ``handbacks``, HELLO's ``scenario`` and the HEARTBEAT kind.
 
-`decode` trusts nothing: it checks the JSON, the version, the kind, every field's presence and
-type, that numbers are finite and that no field is extra, and raises `MessageError` saying what
-is wrong with the bad value quoted. It returns OBSERVE and ACT bodies already converted to
-`fleet.plugins` objects (`Observation`, `Announcement`, `Command`, `Bid`, `Handback`), so each
-message is parsed and checked exactly once. Batching many robots into one message keeps the
-per-robot cost to a few microseconds.
+The schema is written once, as msgspec types (the ``_Wire`` structs and the array aliases
+below), and msgspec checks it in C: `decode` parses and validates a frame in one pass and
+returns OBSERVE and ACT bodies converted to `fleet.plugins` objects (`Observation`,
+`Announcement`, `Command`, `Bid`, `Handback`); `encode` converts the body to the same types
+before writing it, so nothing goes out that breaks them (msgspec alone would write NaN as
+``null``). The few rules a type cannot state (radius > 0, sorted cap pieces, unique robots)
+`decode` checks while converting.
+
+A rejected message raises `MessageError` saying the message's kind and sender, the field's
+full path and the bad value quoted, e.g. ``OBSERVE message from 'exchange':
+body.observations[3].vx = 'fast': must be a finite number``. msgspec names only the path, so
+the value is found by walking it through the frame parsed again without types, which happens
+only once a frame has failed.
 """
 
 from __future__ import annotations
 
 import enum
-import json
-from collections.abc import Collection, Mapping, Sequence
-from dataclasses import dataclass
-from itertools import chain
-from typing import Any
+import functools
+import re
+import reprlib
+import sys
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass, fields
+from numbers import Real
+from types import NoneType, UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
+
+import msgspec
+from msgspec import Meta, Struct
 
 from fleet.errors import MessageError
 from fleet.plugins import (
@@ -120,34 +137,189 @@ class Message:
     version: int = SCHEMA_VERSION
 
 
+# --- the wire types ------------------------------------------------------------------------------
+#
+# Besides constraints, a type's Meta says how errors read: `title` names the value where the
+# path does not (an array item reported by index: "the job id must be ..."), `description`
+# says what the value must be where the type alone would say it badly, and extra["at"] where
+# errors inside an array are reported: at the array itself (""), under a name (".plan"), or,
+# without it, at the item's index.
+
+_MAX = sys.float_info.max
+# JSON cannot carry NaN or infinities (msgspec would write null): both bounds exclude them,
+# which matters when encode converts Python values; parsed JSON numbers are finite anyway.
+_Finite = Annotated[float, Meta(ge=-_MAX, le=_MAX)]
+_NonNegative = Annotated[float, Meta(ge=0.0, le=_MAX)]
+_Count = Annotated[int, Meta(ge=0)]
+_Name = Annotated[str, Meta(min_length=1)]
+_RobotId = Annotated[str, Meta(min_length=1, title="the robot id")]
+_JobId = Annotated[str, Meta(min_length=1, title="the job id")]
+_ListedId = Annotated[str, Meta(min_length=1, title="robot ids", description="non-empty strings")]
+_IDS = Meta(description="an array of robot ids", extra={"at": ""})
+_RobotIds = Annotated[list[_ListedId], _IDS]
+
+_Sample = Annotated[
+    tuple[_Finite, _Finite, _Finite], Meta(description="a [t, x, y] triple", extra={"at": ""})
+]
+_Plan = Annotated[tuple[_Sample, ...], Meta(description="an array of [t, x, y]")]
+_Goal = Annotated[tuple[_Finite, _Finite], Meta(description="[x, y]")]
+_CapPiece = Annotated[
+    tuple[_Finite, _Finite, _Finite],
+    Meta(description="[start_s, end_s, cap]", extra={"at": ""}),
+]
+# A neighbour's numbers are reported at the neighbour, its priority and plan by name (the
+# radius > 0 rule is checked in _observation, so that its error names the radius).
+_Neighbour = Annotated[
+    tuple[_RobotId, _Finite, _Finite, _Finite, _Finite, _Finite, int, _Plan],
+    Meta(
+        description="[robot, x, y, vx, vy, radius, priority, plan]",
+        extra={"at": ("", "", "", "", "", "", ".priority", ".plan")},
+    ),
+]
+_Announcement = Annotated[
+    tuple[
+        _JobId,
+        _Finite,
+        _Finite,
+        Annotated[float, Meta(ge=0.0, le=_MAX, title="print_s")],
+        _Finite,
+        _Finite | None,
+    ],
+    Meta(description="[job, x, y, print_s, released_s, due_s]"),
+]
+_Bid = Annotated[
+    tuple[_JobId, _RobotId, Annotated[float, Meta(ge=0.0, le=_MAX, title="estimate_s")]],
+    Meta(description="[job, robot, estimate_s]"),
+]
+_Handback = Annotated[
+    tuple[_RobotId, _JobId, Annotated[str, Meta(title="the reason")]],
+    Meta(description="[robot, job, reason]"),
+]
+_Solve = Annotated[
+    tuple[SolverOutcome, _NonNegative, _NonNegative],
+    Meta(description="[outcome, solver_s, step_s]"),
+]
+
+
+class _Wire(Struct, forbid_unknown_fields=True, gc=False):
+    """A JSON object with exactly these fields (gc=False: parsed values hold no cycles)."""
+
+
+class _Observation(_Wire):
+    robot: _Name
+    tick: _Count
+    t: _Finite
+    x: _Finite
+    y: _Finite
+    vx: _Finite
+    vy: _Finite
+    goal: _Goal | None
+    job: _Name | None
+    speed_cap: _NonNegative | None
+    neighbours: tuple[_Neighbour, ...]
+    speed_caps: tuple[_CapPiece, ...]
+    print_end_s: _Finite | None
+    priority: int
+    blockers: Annotated[tuple[_ListedId, ...], _IDS]
+    queued: _Count
+
+
+class _Command(_Wire):
+    ax: _Finite
+    ay: _Finite
+    status: ControlStatus
+    plan: _Plan
+    solve: _Solve | None
+
+
+class _HelloBody(_Wire):
+    robots: _RobotIds
+    scenario: str
+
+
+class _WelcomeBody(_Wire):
+    accepted: _RobotIds
+    rejected: dict[_RobotId, str]
+
+
+class _ObserveBody(_Wire):
+    t: _Finite
+    observations: list[_Observation]
+    announcements: list[_Announcement]
+
+
+class _ActBody(_Wire):
+    commands: dict[_RobotId, _Command]
+    bids: list[_Bid]
+    handbacks: list[_Handback]
+
+
+class _HeartbeatBody(_Wire):
+    pass
+
+
+class _ByeBody(_Wire):
+    reason: str
+
+
+class _Envelope(_Wire, tag_field="kind"):
+    version: Literal[4]  # SCHEMA_VERSION
+    sender: _Name
+    tick: _Count
+
+
+class _Hello(_Envelope, tag=MessageKind.HELLO.value):
+    body: _HelloBody
+
+
+class _Welcome(_Envelope, tag=MessageKind.WELCOME.value):
+    body: _WelcomeBody
+
+
+class _Observe(_Envelope, tag=MessageKind.OBSERVE.value):
+    body: _ObserveBody
+
+
+class _Act(_Envelope, tag=MessageKind.ACT.value):
+    body: _ActBody
+
+
+class _Heartbeat(_Envelope, tag=MessageKind.HEARTBEAT.value):
+    body: _HeartbeatBody
+
+
+class _Bye(_Envelope, tag=MessageKind.BYE.value):
+    body: _ByeBody
+
+
+_ENVELOPES: dict[MessageKind, type[_Envelope]] = {
+    MessageKind.HELLO: _Hello,
+    MessageKind.WELCOME: _Welcome,
+    MessageKind.OBSERVE: _Observe,
+    MessageKind.ACT: _Act,
+    MessageKind.HEARTBEAT: _Heartbeat,
+    MessageKind.BYE: _Bye,
+}
+_KIND_OF = {cls: kind for kind, cls in _ENVELOPES.items()}
+_BODIES: dict[MessageKind, type[_Wire]] = {
+    MessageKind.HELLO: _HelloBody,
+    MessageKind.WELCOME: _WelcomeBody,
+    MessageKind.OBSERVE: _ObserveBody,
+    MessageKind.ACT: _ActBody,
+    MessageKind.HEARTBEAT: _HeartbeatBody,
+    MessageKind.BYE: _ByeBody,
+}
+_BODY_FIELDS = {
+    kind: frozenset(f.name for f in msgspec.structs.fields(cls)) for kind, cls in _BODIES.items()
+}
+
+_DECODER = msgspec.json.Decoder(_Hello | _Welcome | _Observe | _Act | _Heartbeat | _Bye)
+# Only for frames that failed: out-of-range numbers become inf so they can be quoted.
+_RAW_DECODER = msgspec.json.Decoder(float_hook=float)
+_ENCODER = msgspec.json.Encoder()
+
+
 # --- encoding ------------------------------------------------------------------------------------
-
-
-def _unencodable(value: Any) -> Any:
-    raise TypeError(f"{type(value).__name__} {_quote(value)} is not a JSON value")
-
-
-# The C encoder, built once and called directly: json.dumps rebuilds it on every call, which
-# costs more than encoding a small message. allow_nan=False makes NaN and infinity errors.
-_c_encoder = getattr(json.encoder, "c_make_encoder", None)
-if _c_encoder is not None:
-    _make_chunks = _c_encoder(
-        None,
-        _unencodable,
-        json.encoder.encode_basestring_ascii,
-        None,
-        ":",
-        ",",
-        False,
-        False,
-        False,
-    )
-
-    def _to_json(obj: Any) -> str:
-        return "".join(_make_chunks(obj, 0))
-
-else:  # pragma: no cover - Python builds without the _json accelerator
-    _to_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_unencodable).encode
 
 
 def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -> bytes:
@@ -164,8 +336,8 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
     MessageError
         If `kind`, `sender` or `tick` is malformed, the body lacks a field of its kind or has
         one too many, ``observations`` is not a list of observations, ``commands`` is not a
-        mapping of robot ids to commands, a command, bid or handback is invalid, or the body
-        holds a value JSON cannot carry (NaN, infinity, a non-JSON type); the message names
+        mapping of robot ids to commands, a command, bid or handback is invalid, or any value
+        breaks the schema (NaN, infinity, a wrong type, a non-JSON type); the message names
         where.
     """
     if not isinstance(kind, MessageKind):
@@ -174,74 +346,117 @@ def encode(kind: MessageKind, sender: str, tick: int, body: Mapping[str, Any]) -
         raise MessageError(f"cannot encode: sender = {_quote(sender)}: must be a non-empty string")
     if type(tick) is not int or tick < 0:
         raise MessageError(f"cannot encode: tick = {_quote(tick)}: must be an integer >= 0")
-    where = f"cannot encode {kind.name} from {sender!r} at tick {tick}: body"
+    where = f"cannot encode {kind.name} from {sender!r} at tick {tick}"
     if not isinstance(body, Mapping):
-        raise _fail(where, body, "must be a mapping")
-    fields = _BODY_FIELDS[kind]
-    if body.keys() != fields:
-        _check_fields(dict(body), where, fields)
+        raise _fail(f"{where}: body", body, "must be a mapping")
+    if body.keys() != _BODY_FIELDS[kind]:
+        raise _fields_error(dict(body), f"{where}: body", _BODY_FIELDS[kind])
     if kind is MessageKind.OBSERVE:
-        items = body["observations"]
-        if not isinstance(items, list | tuple):
-            raise _fail(f"{where}.observations", items, "must be a list of observations")
-        wire = []
-        for i, o in enumerate(items):
-            if isinstance(o, Observation):
-                wire.append(observation_to_wire(o))
-            elif type(o) is dict:
-                wire.append(o)
-            else:
-                raise _fail(
-                    f"{where}.observations[{i}]",
-                    o,
-                    "must be a fleet.plugins.Observation or its wire dict",
-                )
-        announcements = _items_to_wire(
-            body["announcements"], Announcement, announcement_to_wire, f"{where}.announcements"
-        )
-        body = {**body, "observations": wire, "announcements": announcements}
+        body = {
+            "t": body["t"],
+            "observations": _observations_to_wire(
+                body["observations"], f"{where}: body.observations"
+            ),
+            "announcements": _items_to_wire(
+                body["announcements"],
+                Announcement,
+                announcement_to_wire,
+                f"{where}: body.announcements",
+            ),
+        }
     elif kind is MessageKind.ACT:
-        items = body["commands"]
-        if not isinstance(items, Mapping):
-            raise _fail(f"{where}.commands", items, "must be a mapping {robot: command}")
-        commands = {}
-        for robot, c in items.items():
-            if isinstance(c, Command):
-                try:
-                    commands[robot] = command_to_wire(c)
-                except MessageError as exc:
-                    raise MessageError(f"cannot encode ACT for robot {robot!r}: {exc}") from None
-            elif type(c) is dict:
-                commands[robot] = c
-            else:
-                raise _fail(
-                    f"{where}.commands[{robot!r}]",
-                    c,
-                    "must be a fleet.plugins.Command or its wire dict",
-                )
-        bids = _items_to_wire(body["bids"], Bid, bid_to_wire, f"{where}.bids")
-        handbacks = _items_to_wire(
-            body["handbacks"], Handback, handback_to_wire, f"{where}.handbacks"
-        )
-        body = {**body, "commands": commands, "bids": bids, "handbacks": handbacks}
+        body = {
+            "commands": _commands_to_wire(body["commands"], f"{where}: body.commands"),
+            "bids": _items_to_wire(body["bids"], Bid, bid_to_wire, f"{where}: body.bids"),
+            "handbacks": _items_to_wire(
+                body["handbacks"], Handback, handback_to_wire, f"{where}: body.handbacks"
+            ),
+        }
     envelope = {
         "version": SCHEMA_VERSION,
         "kind": kind.value,
         "sender": sender,
         "tick": tick,
-        "body": body,
+        "body": _checked(body, _BODIES[kind], where, "body"),
     }
     try:
-        return _to_json(envelope).encode()
-    except (ValueError, TypeError, RecursionError) as exc:
-        where = _find_unencodable(body, "body") or "body"
-        raise MessageError(
-            f"cannot encode {kind.name} from {sender!r} at tick {tick}: {where}: {exc}"
-        ) from exc
+        return _ENCODER.encode(envelope)
+    except UnicodeEncodeError as exc:  # what the schema lets through but UTF-8 cannot carry
+        found = _not_unicode({**envelope, "body": body}, "")
+        raise MessageError(f"{where}: {found.lstrip('.') or 'a string'}: {exc.reason}") from None
 
 
-def _items_to_wire(items: Any, cls: type, to_wire: Any, where: str) -> list:
-    """`items` (objects of `cls` or their wire lists) as wire lists, for `encode`."""
+def _not_unicode(value: Any, path: str) -> str:
+    """Where in `value` a string (or key) holds a lone surrogate; "" if nowhere."""
+    if isinstance(value, str):
+        return "" if value.isascii() or _encodes(value) else path
+    if isinstance(value, Mapping):
+        for k, v in value.items():
+            found = _not_unicode(k, f"{path} key {k!r}") or _not_unicode(v, f"{path}.{k}")
+            if found:
+                return found
+    elif isinstance(value, list | tuple):
+        for i, v in enumerate(value):
+            found = _not_unicode(v, f"{path}[{i}]")
+            if found:
+                return found
+    return ""
+
+
+def _encodes(text: str) -> bool:
+    try:
+        text.encode()
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _observations_to_wire(items: Any, where: str) -> list[dict[str, Any]]:
+    """`items` (observations or their wire dicts, at `where`) as wire dicts."""
+    if not isinstance(items, list | tuple):
+        raise _fail(where, items, "must be a list of observations")
+    wire = []
+    for i, o in enumerate(items):
+        if isinstance(o, Observation):
+            try:
+                wire.append(observation_to_wire(o))
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise MessageError(f"{where}[{i}]: {exc}") from None
+        elif type(o) is dict:
+            wire.append(o)
+        else:
+            raise _fail(
+                f"{where}[{i}]",
+                o,
+                "must be a fleet.plugins.Observation or its wire dict",
+            )
+    return wire
+
+
+def _commands_to_wire(items: Any, where: str) -> dict[Any, Any]:
+    """`items` (robot ids to commands or their wire dicts, at `where`) to wire dicts."""
+    if not isinstance(items, Mapping):
+        raise _fail(where, items, "must be a mapping {robot: command}")
+    wire = {}
+    for robot, c in items.items():
+        if isinstance(c, Command):
+            try:
+                wire[robot] = command_to_wire(c)
+            except MessageError as exc:
+                raise MessageError(f"cannot encode ACT for robot {robot!r}: {exc}") from None
+        elif type(c) is dict:
+            wire[robot] = c
+        else:
+            raise _fail(
+                f"{where}[{robot!r}]",
+                c,
+                "must be a fleet.plugins.Command or its wire dict",
+            )
+    return wire
+
+
+def _items_to_wire(items: Any, cls: type, to_wire: Any, where: str) -> list[Any]:
+    """`items` (objects of `cls` or their wire lists, at `where`) as wire lists."""
     if not isinstance(items, list | tuple):
         raise _fail(where, items, f"must be a list of fleet.plugins.{cls.__name__}")
     wire = []
@@ -263,8 +478,9 @@ def observation_to_wire(o: Observation) -> dict[str, Any]:
 
     A neighbour's plan goes out as it is (a tuple of ``(t, x, y)`` tuples): it is the plan
     that robot's agent sent, already checked when it arrived, and copying thousands of
-    samples per tick would be most of the encoding time. A sample JSON cannot carry (NaN,
-    a numpy array) still makes `encode` fail, naming where.
+    samples per tick would be most of the encoding time. `encode` checks the whole body
+    against the schema, so a sample the bus cannot carry (NaN, a numpy array) still makes it
+    fail, naming where.
     """
     goal = o.goal
     return {
@@ -302,6 +518,8 @@ def observation_to_wire(o: Observation) -> dict[str, Any]:
 def command_to_wire(c: Command) -> dict[str, Any]:
     """The JSON form of a command, checked on the way out since commands come from plugins.
 
+    Numbers of other types (numpy's, ints) become plain floats.
+
     Raises
     ------
     MessageError
@@ -313,23 +531,32 @@ def command_to_wire(c: Command) -> dict[str, Any]:
     status = c.status
     if not isinstance(status, ControlStatus):
         raise _fail("command.status", status, f"must be a ControlStatus ({_STATUS_NAMES})")
-    plan = c.plan
     solve = c.solve
     if solve is not None:
         if not isinstance(solve, SolveReport) or not isinstance(solve.outcome, SolverOutcome):
             raise _fail("command.solve", solve, "must be None or a SolveReport")
-        solve = [
-            solve.outcome.value,
-            _number(solve.solver_s, "command.solve", "solver_s"),
-            _number(solve.step_s, "command.solve", "step_s"),
-        ]
-    return {
-        "ax": _number(c.ax, "command", "ax"),
-        "ay": _number(c.ay, "command", "ay"),
+        solve = [solve.outcome.value, _plain(solve.solver_s), _plain(solve.step_s)]
+    plan = c.plan
+    if isinstance(plan, list | tuple) and not _SAMPLE_TYPES.issuperset(map(type, plan)):
+        # Exactly tuples or lists, as documented for plugins: msgspec would take a namedtuple.
+        i, p = next((i, p) for i, p in enumerate(plan) if type(p) not in _SAMPLE_TYPES)
+        raise _fail(f"command.plan[{i}]", p, "must be a [t, x, y] triple")
+    wire = {
+        "ax": _plain(c.ax),
+        "ay": _plain(c.ay),
         "status": status.value,
-        "plan": [_triple(p, "command.plan", i) for i, p in enumerate(plan)] if plan else [],
+        "plan": plan if plan else (),
         "solve": solve,
     }
+    try:
+        msgspec.convert(wire, _Command)
+    except msgspec.ValidationError:
+        # Most plans hold plain floats already; only a failing one is copied with its numbers
+        # made plain, then checked again (and reported if still wrong).
+        if isinstance(plan, list | tuple):
+            wire["plan"] = [tuple(map(_plain, p)) for p in plan]
+        _checked(wire, _Command, "", "command")
+    return wire
 
 
 def announcement_to_wire(a: Announcement) -> list[Any]:
@@ -340,18 +567,16 @@ def announcement_to_wire(a: Announcement) -> list[Any]:
     MessageError
         If the job id is not a non-empty string, a number is not finite or `print_s` < 0.
     """
-    _nonempty(a.job, "announcement", "job")
-    print_s = _number(a.print_s, "announcement", "print_s")
-    if print_s < 0:
-        raise _fail("announcement.print_s", a.print_s, "must be >= 0")
-    return [
+    wire = [
         a.job,
-        _number(a.x, "announcement", "x"),
-        _number(a.y, "announcement", "y"),
-        print_s,
-        _number(a.released_s, "announcement", "released_s"),
-        None if a.due_s is None else _number(a.due_s, "announcement", "due_s"),
+        _plain(a.x),
+        _plain(a.y),
+        _plain(a.print_s),
+        _plain(a.released_s),
+        _plain(a.due_s),
     ]
+    _checked(wire, _ANNOUNCEMENT_ATTRIBUTES, "", "announcement")
+    return wire
 
 
 def bid_to_wire(b: Bid) -> list[Any]:
@@ -363,12 +588,9 @@ def bid_to_wire(b: Bid) -> list[Any]:
         If the job or robot id is not a non-empty string, or the estimate is not a finite
         number >= 0.
     """
-    _nonempty(b.job, "bid", "job")
-    _nonempty(b.robot, "bid", "robot")
-    estimate = _number(b.estimate_s, "bid", "estimate_s")
-    if estimate < 0:
-        raise _fail("bid.estimate_s", b.estimate_s, "must be >= 0")
-    return [b.job, b.robot, estimate]
+    wire = [b.job, b.robot, _plain(b.estimate_s)]
+    _checked(wire, _BID_ATTRIBUTES, "", "bid")
+    return wire
 
 
 def handback_to_wire(h: Handback) -> list[Any]:
@@ -379,59 +601,38 @@ def handback_to_wire(h: Handback) -> list[Any]:
     MessageError
         If the robot or job id is not a non-empty string, or the reason is not a string.
     """
-    _nonempty(h.robot, "handback", "robot")
-    _nonempty(h.job, "handback", "job")
-    if type(h.reason) is not str:
-        raise _fail("handback.reason", h.reason, "must be a string")
-    return [h.robot, h.job, h.reason]
+    wire = [h.robot, h.job, h.reason]
+    _checked(wire, _HANDBACK_ATTRIBUTES, "", "handback")
+    return wire
+
+
+def _plain(v: Any) -> Any:
+    """`v` as a plain float if it is a real number of another type (numpy's, an int, not a
+    bool); anything else as it is, for the schema check to reject with the value quoted."""
+    if type(v) is float or isinstance(v, bool) or not isinstance(v, Real):
+        return v
+    try:
+        return float(v)
+    except (OverflowError, ValueError):
+        return v
+
+
+def _by_attribute(array: Any, cls: type) -> Any:
+    """`array`, the wire type of a `cls` object, with errors reported under `cls`'s attribute
+    names: what the ``*_to_wire`` functions check is the object, not a message."""
+    base, meta = get_args(array)
+    names = tuple(f".{f.name}" for f in fields(cls))
+    return Annotated[base, Meta(description=meta.description, extra={"at": names})]
+
+
+_ANNOUNCEMENT_ATTRIBUTES = _by_attribute(_Announcement, Announcement)
+_BID_ATTRIBUTES = _by_attribute(_Bid, Bid)
+_HANDBACK_ATTRIBUTES = _by_attribute(_Handback, Handback)
+_STATUS_NAMES = ", ".join(repr(s.value) for s in ControlStatus)
+_SAMPLE_TYPES = frozenset((tuple, list))
 
 
 # --- decoding ------------------------------------------------------------------------------------
-
-
-def _reject_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not a finite number")
-
-
-_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
-# The scanner alone: JSONDecoder.decode adds two regex passes for surrounding whitespace.
-_scan = _DECODER.scan_once
-
-_ENVELOPE_FIELDS = frozenset(("version", "kind", "sender", "tick", "body"))
-_KINDS = {k.value: k for k in MessageKind}
-_LABELS = {k: f"{k.name} message from " for k in MessageKind}
-_KIND_NAMES = ", ".join(repr(k.value) for k in MessageKind)
-_STATUS = {s.value: s for s in ControlStatus}
-_STATUS_NAMES = ", ".join(repr(s.value) for s in ControlStatus)
-_OUTCOME = {o.value: o for o in SolverOutcome}
-_OUTCOME_NAMES = ", ".join(repr(o.value) for o in SolverOutcome)
-_OBSERVATION_FIELDS = frozenset(
-    (
-        "robot",
-        "tick",
-        "t",
-        "x",
-        "y",
-        "vx",
-        "vy",
-        "goal",
-        "job",
-        "speed_cap",
-        "neighbours",
-        "speed_caps",
-        "print_end_s",
-        "priority",
-        "blockers",
-        "queued",
-    )
-)
-_COMMAND_FIELDS = frozenset(("ax", "ay", "status", "plan", "solve"))
-_HELLO_FIELDS = frozenset(("robots", "scenario"))
-_WELCOME_FIELDS = frozenset(("accepted", "rejected"))
-_OBSERVE_FIELDS = frozenset(("t", "observations", "announcements"))
-_ACT_FIELDS = frozenset(("commands", "bids", "handbacks"))
-_HEARTBEAT_FIELDS: frozenset[str] = frozenset()
-_BYE_FIELDS = frozenset(("reason",))
 
 
 def decode(raw: bytes, expect: Collection[MessageKind] | None = None) -> Message:
@@ -459,51 +660,15 @@ def decode(raw: bytes, expect: Collection[MessageKind] | None = None) -> Message
     if not isinstance(raw, bytes):
         raise _fail("bus message", raw, "must be bytes")
     try:
-        text = raw.decode("utf-8")
-        try:
-            obj, end = _scan(text, 0)
-        except StopIteration:  # the scanner's way of saying "no value at index 0"
-            end = -1
-        if end != len(text):
-            # Slow path: whitespace around the value is fine, anything else gets the parser's
-            # own description of what is wrong and where.
-            obj = _DECODER.decode(text)
-    except UnicodeDecodeError as exc:
-        raise _fail(
-            "bus message", raw, f"is not UTF-8 ({exc.reason} at byte {exc.start})"
-        ) from None
-    except (ValueError, RecursionError) as exc:
-        raise _fail("bus message", raw, f"is not valid JSON ({exc})") from None
-    if type(obj) is not dict:
-        raise _fail("bus message", obj, "must be a JSON object (the envelope)")
-    # The version is checked before the field set: another version may have other fields.
-    version = obj.get("version")
-    if version != SCHEMA_VERSION or type(version) is not int:
-        raise _fail(
-            "bus message: version",
-            version,
-            f"unsupported schema version; this build speaks version {SCHEMA_VERSION}",
-        )
-    if obj.keys() != _ENVELOPE_FIELDS:
-        _check_fields(obj, "bus message", _ENVELOPE_FIELDS)
-    kind_value = obj["kind"]
-    kind = _KINDS.get(kind_value) if type(kind_value) is str else None
-    if kind is None:
-        raise _fail("bus message: kind", kind_value, f"must be one of {_KIND_NAMES}")
-    sender = obj["sender"]
-    if type(sender) is not str or not sender:
-        raise _fail("bus message: sender", sender, "must be a non-empty string")
-    where = _LABELS[kind] + _quote(sender)
+        envelope = _DECODER.decode(raw)
+    except (msgspec.MsgspecError, UnicodeDecodeError) as exc:
+        raise _rejection(raw, exc) from None
+    kind = _KIND_OF[type(envelope)]
     if expect is not None and kind not in expect:
         allowed = ", ".join(sorted(k.name for k in expect)) or "nothing"
-        raise MessageError(f"{where}: unexpected kind {kind.name}; expected {allowed}")
-    tick = obj["tick"]
-    if type(tick) is not int or tick < 0:
-        raise _fail(f"{where}: tick", tick, "must be an integer >= 0")
-    body = obj["body"]
-    if type(body) is not dict:
-        raise _fail(f"{where}: body", body, "must be a JSON object")
-    return Message(kind, sender, tick, _BODY_READERS[kind](body, where), version)
+        raise MessageError(f"{_label(envelope)}: unexpected kind {kind.name}; expected {allowed}")
+    body = _READERS[kind](envelope)
+    return Message(kind, envelope.sender, envelope.tick, body, SCHEMA_VERSION)
 
 
 def observation_from_wire(d: Any) -> Observation:
@@ -514,7 +679,7 @@ def observation_from_wire(d: Any) -> Observation:
     MessageError
         Naming the field and quoting the value that is missing, extra, mistyped or not finite.
     """
-    return _observation(d, "observation")
+    return _observation(_checked(d, _Observation, "", "observation"), "observation")
 
 
 def command_from_wire(d: Any) -> Command:
@@ -525,456 +690,347 @@ def command_from_wire(d: Any) -> Command:
     MessageError
         Naming the field and quoting the value that is missing, extra, mistyped or not finite.
     """
-    return _command(d, "command")
+    return _command(_checked(d, _Command, "", "command"))
 
 
-# --- body readers --------------------------------------------------------------------------------
+def _label(envelope: _Envelope) -> str:
+    return f"{_KIND_OF[type(envelope)].name} message from {_quote(envelope.sender)}"
 
 
-def _hello_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    if body.keys() != _HELLO_FIELDS:
-        _check_fields(body, f"{where}: body", _HELLO_FIELDS)
-    scenario = body["scenario"]
-    if type(scenario) is not str:
-        raise _fail(f"{where}: body.scenario", scenario, "must be a string ('' when unchecked)")
-    return {"robots": _robot_list(body["robots"], f"{where}: body.robots"), "scenario": scenario}
+# --- body readers: the wire types to fleet.plugins objects, and the rules types cannot state ---
 
 
-def _welcome_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    if body.keys() != _WELCOME_FIELDS:
-        _check_fields(body, f"{where}: body", _WELCOME_FIELDS)
-    accepted = _robot_list(body["accepted"], f"{where}: body.accepted")
-    rejected = body["rejected"]
-    if type(rejected) is not dict:
-        raise _fail(f"{where}: body.rejected", rejected, "must be an object {robot: reason}")
-    for robot, reason in rejected.items():
-        if not robot or type(reason) is not str:
-            raise _fail(
-                f"{where}: body.rejected[{robot!r}]",
-                reason,
-                "must map a non-empty robot id to a reason string",
-            )
-    return {"accepted": accepted, "rejected": rejected}
+def _hello(m: _Hello) -> dict[str, Any]:
+    return {"robots": _unique(m.body.robots, m, "robots"), "scenario": m.body.scenario}
 
 
-def _observe_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    if body.keys() != _OBSERVE_FIELDS:
-        _check_fields(body, f"{where}: body", _OBSERVE_FIELDS)
-    t = _number(body["t"], f"{where}: body", "t")
-    items = body["observations"]
-    if type(items) is not list:
-        raise _fail(f"{where}: body.observations", items, "must be an array of observations")
-    prefix = f"{where}: body.observations"
-    observations = [_observation(d, prefix, i) for i, d in enumerate(items)]
-    announcements = body["announcements"]
-    if type(announcements) is not list:
-        raise _fail(
-            f"{where}: body.announcements", announcements, "must be an array of announcements"
-        )
-    prefix = f"{where}: body.announcements"
+def _welcome(m: _Welcome) -> dict[str, Any]:
+    return {"accepted": _unique(m.body.accepted, m, "accepted"), "rejected": m.body.rejected}
+
+
+def _observe(m: _Observe) -> dict[str, Any]:
+    body = m.body
     return {
-        "t": t,
-        "observations": observations,
-        "announcements": [_announcement(a, f"{prefix}[{i}]") for i, a in enumerate(announcements)],
+        "t": body.t,
+        "observations": [_observation(o, m, i) for i, o in enumerate(body.observations)],
+        "announcements": [Announcement(*a) for a in body.announcements],
     }
 
 
-def _act_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    if body.keys() != _ACT_FIELDS:
-        _check_fields(body, f"{where}: body", _ACT_FIELDS)
-    items = body["commands"]
-    if type(items) is not dict:
-        raise _fail(f"{where}: body.commands", items, "must be an object {robot: command}")
-    prefix = f"{where}: body.commands"
-    commands = {}
-    for robot, d in items.items():
-        if not robot:
-            raise _fail(prefix, robot, "robot ids must be non-empty")
-        commands[robot] = _command(d, prefix, robot)
-    bids = body["bids"]
-    if type(bids) is not list:
-        raise _fail(f"{where}: body.bids", bids, "must be an array of [job, robot, estimate_s]")
-    handbacks = body["handbacks"]
-    if type(handbacks) is not list:
-        raise _fail(
-            f"{where}: body.handbacks", handbacks, "must be an array of [robot, job, reason]"
-        )
-    prefix = f"{where}: body"
+def _act(m: _Act) -> dict[str, Any]:
+    body = m.body
     return {
-        "commands": commands,
-        "bids": [_bid(b, f"{prefix}.bids[{i}]") for i, b in enumerate(bids)],
-        "handbacks": [_handback(h, f"{prefix}.handbacks[{i}]") for i, h in enumerate(handbacks)],
+        "commands": {robot: _command(c) for robot, c in body.commands.items()},
+        "bids": [Bid(*b) for b in body.bids],
+        "handbacks": [Handback(*h) for h in body.handbacks],
     }
 
 
-def _heartbeat_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    if body:
-        _check_fields(body, f"{where}: body", _HEARTBEAT_FIELDS)
+def _heartbeat(m: _Heartbeat) -> dict[str, Any]:
     return {}
 
 
-def _bye_body(body: dict[str, Any], where: str) -> dict[str, Any]:
-    if body.keys() != _BYE_FIELDS:
-        _check_fields(body, f"{where}: body", _BYE_FIELDS)
-    reason = body["reason"]
-    if type(reason) is not str:
-        raise _fail(f"{where}: body.reason", reason, "must be a string")
-    return {"reason": reason}
+def _bye(m: _Bye) -> dict[str, Any]:
+    return {"reason": m.body.reason}
 
 
-_BODY_FIELDS = {
-    MessageKind.HELLO: _HELLO_FIELDS,
-    MessageKind.WELCOME: _WELCOME_FIELDS,
-    MessageKind.OBSERVE: _OBSERVE_FIELDS,
-    MessageKind.ACT: _ACT_FIELDS,
-    MessageKind.HEARTBEAT: _HEARTBEAT_FIELDS,
-    MessageKind.BYE: _BYE_FIELDS,
-}
-
-_BODY_READERS = {
-    MessageKind.HELLO: _hello_body,
-    MessageKind.WELCOME: _welcome_body,
-    MessageKind.OBSERVE: _observe_body,
-    MessageKind.ACT: _act_body,
-    MessageKind.HEARTBEAT: _heartbeat_body,
-    MessageKind.BYE: _bye_body,
+_READERS: dict[MessageKind, Callable[[Any], dict[str, Any]]] = {
+    MessageKind.HELLO: _hello,
+    MessageKind.WELCOME: _welcome,
+    MessageKind.OBSERVE: _observe,
+    MessageKind.ACT: _act,
+    MessageKind.HEARTBEAT: _heartbeat,
+    MessageKind.BYE: _bye,
 }
 
 
-# --- item readers (hot path: keep the happy path free of string formatting) -----------------------
-
-
-def _observation(d: Any, prefix: str, index: int | None = None) -> Observation:
-    if type(d) is not dict or d.keys() != _OBSERVATION_FIELDS:
-        _check_fields(d, _at(prefix, index), _OBSERVATION_FIELDS)
-    robot = d["robot"]
-    if type(robot) is not str or not robot:
-        raise _fail(f"{_at(prefix, index)}.robot", robot, "must be a non-empty string")
-    tick = d["tick"]
-    if type(tick) is not int or tick < 0:
-        raise _fail(f"{_at(prefix, index)}.tick", tick, "must be an integer >= 0")
-    goal = d["goal"]
-    if goal is not None:
-        if type(goal) is not list or len(goal) != 2:
-            raise _fail(f"{_at(prefix, index)}.goal", goal, "must be null or [x, y]")
-        goal = (
-            _number(goal[0], prefix, "goal[0]", index),
-            _number(goal[1], prefix, "goal[1]", index),
-        )
-    job = d["job"]
-    if job is not None and (type(job) is not str or not job):
-        raise _fail(f"{_at(prefix, index)}.job", job, "must be null or a non-empty string")
-    cap = d["speed_cap"]
-    if cap is not None:
-        cap = _number(cap, prefix, "speed_cap", index)
-        if cap < 0:
-            raise _fail(f"{_at(prefix, index)}.speed_cap", cap, "must be null or >= 0")
-    neighbours = d["neighbours"]
-    if type(neighbours) is not list:
-        raise _fail(f"{_at(prefix, index)}.neighbours", neighbours, "must be an array")
-    caps = d["speed_caps"]
-    if type(caps) is not list:
-        raise _fail(f"{_at(prefix, index)}.speed_caps", caps, "must be an array")
-    print_end = d["print_end_s"]
-    if print_end is not None:
-        print_end = _number(print_end, prefix, "print_end_s", index)
-    priority = d["priority"]
-    if type(priority) is not int:
-        raise _fail(f"{_at(prefix, index)}.priority", priority, "must be an integer")
-    queued = d["queued"]
-    if type(queued) is not int or queued < 0:
-        raise _fail(f"{_at(prefix, index)}.queued", queued, "must be an integer >= 0")
-    blockers = d["blockers"]
-    if type(blockers) is not list:
-        raise _fail(f"{_at(prefix, index)}.blockers", blockers, "must be an array of robot ids")
-    for b in blockers:
-        if type(b) is not str or not b:
-            raise _fail(f"{_at(prefix, index)}.blockers", b, "robot ids must be non-empty strings")
-    t, x, y, vx, vy = d["t"], d["x"], d["y"], d["vx"], d["vy"]
-    # Fast path: all plain floats, and x - x == 0.0 only for finite x (inf and nan give nan).
-    if (
-        type(t) is not float
-        or type(x) is not float
-        or type(y) is not float
-        or type(vx) is not float
-        or type(vy) is not float
-        or t - t + x - x + y - y + vx - vx + vy - vy != 0.0
-    ):
-        t = _number(t, prefix, "t", index)
-        x = _number(x, prefix, "x", index)
-        y = _number(y, prefix, "y", index)
-        vx = _number(vx, prefix, "vx", index)
-        vy = _number(vy, prefix, "vy", index)
-    return Observation(
-        robot,
-        tick,
-        t,
-        x,
-        y,
-        vx,
-        vy,
-        goal,
-        job,
-        cap,
-        _neighbours(neighbours, prefix, index) if neighbours else (),
-        _cap_pieces(caps, f"{_at(prefix, index)}.speed_caps") if caps else (),
-        print_end,
-        priority,
-        tuple(blockers),
-        queued,
-    )
-
-
-def _cap_pieces(caps: list, where: str) -> tuple[tuple[float, float, float], ...]:
-    out = []
-    previous = -float("inf")
-    for i, piece in enumerate(caps):
-        if type(piece) is not list or len(piece) != 3:
-            raise _fail(f"{where}[{i}]", piece, "must be [start_s, end_s, cap]")
-        a, b, c = (_number(v, where, f"[{i}]") for v in piece)
-        if not b > a or c < 0 or a < previous:
+def _observation(o: _Observation, m: _Envelope | str, index: int = 0) -> Observation:
+    """`o` as an `Observation`; `m` (its message, or a name for it) and `index` say where it
+    is for errors."""
+    neighbours = tuple([Neighbour(*n) for n in o.neighbours]) if o.neighbours else ()
+    for j, n in enumerate(neighbours):
+        if not n.radius > 0.0:
+            raise _fail(f"{_where(m, index)}.neighbours[{j}].radius", n.radius, "must be > 0")
+    caps = o.speed_caps
+    previous = -_MAX
+    for k, (start, end, cap) in enumerate(caps):
+        if not end > start or cap < 0.0 or start < previous:
             raise _fail(
-                f"{where}[{i}]",
-                piece,
+                f"{_where(m, index)}.speed_caps[{k}]",
+                [start, end, cap],
                 "pieces must be sorted, non-overlapping, end > start, cap >= 0",
             )
-        previous = b
-        out.append((a, b, c))
-    return tuple(out)
-
-
-_NEIGHBOUR_RULE = "must be [robot, x, y, vx, vy, radius, priority, plan]"
-
-
-def _neighbours(items: list, prefix: str, index: int | None) -> tuple[Neighbour, ...]:
-    # The scalars one neighbour at a time, then every plan sample of the observation in one
-    # batch: with eight neighbours of ten samples each, the samples are most of an OBSERVE.
-    rows = []
-    plans = []
-    for j, n in enumerate(items):
-        if type(n) is not list or len(n) != 8:
-            raise _fail(f"{_at(prefix, index)}.neighbours[{j}]", n, _NEIGHBOUR_RULE)
-        robot, x, y, vx, vy, radius, priority, plan = n
-        # Fast path: plain floats, finite (x - x == 0.0 only for finite x), radius > 0.
-        if (
-            type(robot) is not str
-            or not robot
-            or type(x) is not float
-            or type(y) is not float
-            or type(vx) is not float
-            or type(vy) is not float
-            or type(radius) is not float
-            or x - x + y - y + vx - vx + vy - vy + radius - radius != 0.0
-            or not radius > 0.0
-            or type(priority) is not int
-            or type(plan) is not list
-        ):
-            robot, x, y, vx, vy, radius, priority, plan = _neighbour(n, prefix, index, j)
-        rows.append((robot, x, y, vx, vy, radius, priority))
-        plans.append(plan)
-    if _plain_samples(list(chain.from_iterable(plans))):
-        return tuple(
-            [
-                Neighbour(r, x, y, vx, vy, rad, pr, tuple(map(tuple, plan)) if plan else ())
-                for (r, x, y, vx, vy, rad, pr), plan in zip(rows, plans, strict=True)
-            ]
-        )
-    # Exact path: some sample is malformed (say which) or holds ints (convert them).
-    return tuple(
-        [
-            Neighbour(*row, _samples(plan, f"{_at(prefix, index)}.neighbours[{j}].plan"))
-            for j, (row, plan) in enumerate(zip(rows, plans, strict=True))
-        ]
+        previous = end
+    return Observation(
+        o.robot,
+        o.tick,
+        o.t,
+        o.x,
+        o.y,
+        o.vx,
+        o.vy,
+        o.goal,
+        o.job,
+        o.speed_cap,
+        neighbours,
+        caps,
+        o.print_end_s,
+        o.priority,
+        o.blockers,
+        o.queued,
     )
 
 
-def _neighbour(n: list, prefix: str, index: int | None, j: int) -> list:
-    """The fields of one wire neighbour that failed the fast check: converted, or an error."""
-    robot, x, y, vx, vy, radius, priority, plan = n
-    if type(robot) is not str or not robot:
-        raise _fail(f"{_at(prefix, index)}.neighbours[{j}]", n, _NEIGHBOUR_RULE)
-    name = f"neighbours[{j}]"
-    x = _number(x, prefix, name, index)
-    y = _number(y, prefix, name, index)
-    vx = _number(vx, prefix, name, index)
-    vy = _number(vy, prefix, name, index)
-    radius = _number(radius, prefix, name, index)
-    if not radius > 0.0:
-        raise _fail(f"{_at(prefix, index)}.neighbours[{j}].radius", radius, "must be > 0")
-    if type(priority) is not int:
-        raise _fail(
-            f"{_at(prefix, index)}.neighbours[{j}].priority", priority, "must be an integer"
-        )
-    if type(plan) is not list:
-        raise _fail(
-            f"{_at(prefix, index)}.neighbours[{j}].plan", plan, "must be an array of [t, x, y]"
-        )
-    return [robot, x, y, vx, vy, radius, priority, plan]
+def _where(m: _Envelope | str, index: int) -> str:
+    return m if isinstance(m, str) else f"{_label(m)}: body.observations[{index}]"
 
 
-def _plain_samples(samples: list) -> bool:
-    """Whether every item is a list of three floats, all finite (a few C-level passes instead
-    of a Python loop per sample)."""
-    if not samples:
-        return True
-    if set(map(type, samples)) != _LIST_TYPE or set(map(len, samples)) != _THREE:
-        return False
-    flat = list(chain.from_iterable(samples))
-    if set(map(type, flat)) != _FLOAT_TYPE:
-        return False
-    # inf or nan if any value is; a sum that merely overflows sends valid samples down the
-    # exact path, which accepts them.
-    total = sum(flat)
-    return total - total == 0.0
+def _command(c: _Command) -> Command:
+    solve = c.solve
+    return Command(c.ax, c.ay, c.status, c.plan, None if solve is None else SolveReport(*solve))
 
 
-def _samples(plan: list, where: str) -> tuple[tuple[float, float, float], ...]:
-    """A JSON array of ``[t, x, y]`` as a tuple of float triples."""
-    if _plain_samples(plan):
-        return tuple(map(tuple, plan))
-    return tuple([_triple(p, where, i) for i, p in enumerate(plan)])
-
-
-_LIST_TYPE = {list}
-_FLOAT_TYPE = {float}
-_THREE = {3}
-
-
-def _announcement(a: Any, where: str) -> Announcement:
-    if type(a) is not list or len(a) != 6:
-        raise _fail(where, a, "must be [job, x, y, print_s, released_s, due_s]")
-    job, x, y, print_s, released_s, due_s = a
-    if type(job) is not str or not job:
-        raise _fail(f"{where}[0]", job, "the job id must be a non-empty string")
-    x = _number(x, where, "[1]")
-    y = _number(y, where, "[2]")
-    print_s = _number(print_s, where, "[3]")
-    if print_s < 0:
-        raise _fail(f"{where}[3]", print_s, "print_s must be >= 0")
-    released_s = _number(released_s, where, "[4]")
-    if due_s is not None:
-        due_s = _number(due_s, where, "[5]")
-    return Announcement(job, x, y, print_s, released_s, due_s)
-
-
-def _bid(b: Any, where: str) -> Bid:
-    if type(b) is not list or len(b) != 3:
-        raise _fail(where, b, "must be [job, robot, estimate_s]")
-    job, robot, estimate = b
-    if type(job) is not str or not job:
-        raise _fail(f"{where}[0]", job, "the job id must be a non-empty string")
-    if type(robot) is not str or not robot:
-        raise _fail(f"{where}[1]", robot, "the robot id must be a non-empty string")
-    estimate = _number(estimate, where, "[2]")
-    if estimate < 0:
-        raise _fail(f"{where}[2]", estimate, "estimate_s must be >= 0")
-    return Bid(job, robot, estimate)
-
-
-def _handback(h: Any, where: str) -> Handback:
-    if type(h) is not list or len(h) != 3:
-        raise _fail(where, h, "must be [robot, job, reason]")
-    robot, job, reason = h
-    if type(robot) is not str or not robot:
-        raise _fail(f"{where}[0]", robot, "the robot id must be a non-empty string")
-    if type(job) is not str or not job:
-        raise _fail(f"{where}[1]", job, "the job id must be a non-empty string")
-    if type(reason) is not str:
-        raise _fail(f"{where}[2]", reason, "the reason must be a string")
-    return Handback(robot, job, reason)
-
-
-def _command(d: Any, prefix: str, key: str | None = None) -> Command:
-    if type(d) is not dict or d.keys() != _COMMAND_FIELDS:
-        _check_fields(d, _key(prefix, key), _COMMAND_FIELDS)
-    status_value = d["status"]
-    status = _STATUS.get(status_value) if type(status_value) is str else None
-    if status is None:
-        raise _fail(f"{_key(prefix, key)}.status", status_value, f"must be one of {_STATUS_NAMES}")
-    plan = d["plan"]
-    if type(plan) is not list:
-        raise _fail(f"{_key(prefix, key)}.plan", plan, "must be an array of [t, x, y]")
-    ax, ay = d["ax"], d["ay"]
-    if type(ax) is not float or type(ay) is not float or ax - ax + ay - ay != 0.0:
-        ax = _number(ax, _key(prefix, key), "ax")
-        ay = _number(ay, _key(prefix, key), "ay")
-    solve = d["solve"]
-    if solve is not None:
-        solve = _solve(solve, f"{_key(prefix, key)}.solve")
-    if plan:
-        where = f"{_key(prefix, key)}.plan"
-        plan = tuple([_triple(p, where, i) for i, p in enumerate(plan)])
-        return Command(ax, ay, status, plan, solve)
-    return Command(ax, ay, status, (), solve)
-
-
-def _solve(s: Any, where: str) -> SolveReport:
-    if type(s) is not list or len(s) != 3:
-        raise _fail(where, s, "must be null or [outcome, solver_s, step_s]")
-    outcome = _OUTCOME.get(s[0]) if type(s[0]) is str else None
-    if outcome is None:
-        raise _fail(f"{where}[0]", s[0], f"must be one of {_OUTCOME_NAMES}")
-    solver_s, step_s = _number(s[1], where, "[1]"), _number(s[2], where, "[2]")
-    if solver_s < 0 or step_s < 0:
-        raise _fail(where, s, "times must be >= 0")
-    return SolveReport(outcome, solver_s, step_s)
-
-
-def _triple(p: Any, where: str, i: int) -> tuple[float, float, float]:
-    if (type(p) is not list and type(p) is not tuple) or len(p) != 3:
-        raise _fail(f"{where}[{i}]", p, "must be a [t, x, y] triple")
-    name = f"[{i}]"
-    return (_number(p[0], where, name), _number(p[1], where, name), _number(p[2], where, name))
-
-
-def _number(v: Any, prefix: str, name: str, index: int | None = None) -> float:
-    """`v` as a finite float; ints are accepted, bools are not."""
-    kind = type(v)
-    if kind is float:
-        if v - v == 0.0:  # False for inf and nan
-            return v
-    elif kind is int:
-        try:
-            return float(v)
-        except OverflowError:
-            pass
-    else:
-        # numpy scalars and other float subclasses (only reachable from command_to_wire)
-        try:
-            if isinstance(v, float) or (hasattr(v, "__float__") and not isinstance(v, bool | str)):
-                f = float(v)
-                if f - f == 0.0:
-                    return f
-        except (TypeError, ValueError, OverflowError):
-            pass
-    sep = "" if name.startswith("[") else "."
-    raise _fail(f"{_at(prefix, index)}{sep}{name}", v, "must be a finite number")
-
-
-def _nonempty(v: Any, prefix: str, name: str) -> None:
-    if type(v) is not str or not v:
-        raise _fail(f"{prefix}.{name}", v, "must be a non-empty string")
-
-
-def _robot_list(robots: Any, where: str) -> list[str]:
-    if type(robots) is not list:
-        raise _fail(where, robots, "must be an array of robot ids")
-    for r in robots:
-        if type(r) is not str or not r:
-            raise _fail(where, r, "robot ids must be non-empty strings")
+def _unique(robots: list[str], m: _Envelope, field: str) -> list[str]:
     if len(set(robots)) != len(robots):
         dupes = sorted({r for r in robots if robots.count(r) > 1})
-        raise _fail(where, dupes, "robot ids must be unique")
+        raise _fail(f"{_label(m)}: body.{field}", dupes, "robot ids must be unique")
     return robots
 
 
-# --- error helpers -------------------------------------------------------------------------------
+# --- errors --------------------------------------------------------------------------------------
+
+
+def _checked(value: Any, wire: Any, where: str, path: str) -> Any:
+    """`value` converted to the wire type `wire`, or a `MessageError` naming what is wrong at
+    `where`: `path`."""
+    try:
+        return msgspec.convert(value, wire)
+    except msgspec.ValidationError as exc:
+        raise _invalid(where, path, value, wire, exc) from None
+
+
+def _rejection(raw: bytes, error: Exception) -> MessageError:
+    """Why the frame `raw` failed to decode (with `error`), said as a `MessageError`."""
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return _fail("bus message", raw, f"is not UTF-8 ({exc.reason} at byte {exc.start})")
+    try:
+        obj = _RAW_DECODER.decode(raw)
+    except msgspec.ValidationError:  # valid JSON msgspec cannot hold untyped (a huge integer)
+        return _fail("bus message", raw, f"cannot be read ({error})")
+    except msgspec.DecodeError as exc:
+        return _fail("bus message", raw, f"is not valid JSON ({_json_problem(raw, exc)})")
+    except RecursionError:
+        return _fail("bus message", raw, f"nests too deeply to be read ({error})")
+    if type(obj) is not dict:
+        return _fail("bus message", obj, "must be a JSON object (the envelope)")
+    # The version first: another version may have other fields.
+    version = obj.get("version")
+    if version != SCHEMA_VERSION or type(version) is not int:
+        return _fail(
+            "bus message: version",
+            version,
+            f"unsupported schema version; this build speaks version {SCHEMA_VERSION}",
+        )
+    kind_value = obj.get("kind")
+    kind = _KINDS.get(kind_value) if type(kind_value) is str else None
+    if kind is None:
+        return _fail("bus message: kind", kind_value, f"must be one of {_KIND_NAMES}")
+    sender = obj.get("sender")
+    label = "bus message"
+    if type(sender) is str and sender:
+        label = f"{kind.name} message from {_quote(sender)}"
+    if not isinstance(error, msgspec.ValidationError):  # a fault only the typed parse sees
+        return _fail(label, raw, f"is not valid ({error})")
+    return _invalid(label, "", obj, _ENVELOPES[kind], error)
+
+
+_KINDS = {k.value: k for k in MessageKind}
+_KIND_NAMES = ", ".join(repr(k.value) for k in MessageKind)
+_AT_BYTE = re.compile(r"\(byte (\d+)\)")
+
+
+def _json_problem(raw: bytes, error: msgspec.DecodeError) -> str:
+    """msgspec's reason, except that Python's spellings of non-finite numbers (``json.dumps``
+    writes them by default) are called what they are."""
+    found = _AT_BYTE.search(str(error))
+    if found:
+        at = int(found[1])
+        for constant in (b"NaN", b"Infinity"):
+            if raw.startswith(constant, at):
+                sign = "-" if raw[at - 1 : at] == b"-" else ""
+                return f"{sign}{constant.decode()} is not a finite number, at byte {at}"
+    return str(error)
+
+
+# msgspec's path: `$` then `.field`, `[index]` or `[...]` (a dict's value, key not said).
+_STEP = re.compile(r"\.(\w+)|\[(\d+)\]|\[\.\.\.\]")
+
+
+def _invalid(
+    where: str, path: str, value: Any, wire: Any, error: msgspec.ValidationError
+) -> MessageError:
+    """msgspec's `error`, raised checking `value` against the wire type `wire`, as a
+    `MessageError` that says where (`where`: `path`, then the path msgspec gives), quotes the
+    bad value (found by walking that path through `value`) and says what it must be."""
+    reason, _, at = str(error).partition(" - at `")
+    of_key = at.startswith("key` in `")
+    at = at.removeprefix("key` in `").removesuffix("`")
+    named = True
+    try:
+        for step in _STEP.finditer(at, 1):
+            field, index = step.groups()
+            container, meta = _resolve(wire, value)
+            if field is not None:
+                wire, value = _field_types(container)[field], value[field]
+                path, named = f"{path}.{field}", True
+            elif index is not None:
+                wire, value, suffix = _item(container, meta, value, int(index))
+                path, named = path + suffix, suffix.startswith(".")
+            else:
+                return _invalid_in(where, path, value, get_args(container)[1])
+        if of_key:
+            key_wire = get_args(_resolve(wire, value)[0])[0]
+            bad = next(k for k in value if not _conforms(k, key_wire))
+            return _fail(f"{_at(where, path)} key", bad, _rule(key_wire, bad, False))
+        if reason.startswith(("Object missing required field", "Object contains unknown field")):
+            struct = _resolve(wire, value)[0]
+            names = frozenset(_field_types(struct)) | {struct.__struct_config__.tag_field} - {None}
+            return _fields_error(value, _at(where, path), names)
+        return _fail(_at(where, path), _as_read(value, wire), _rule(wire, value, named))
+    except (LookupError, TypeError, ValueError, AttributeError, StopIteration):
+        # The path does not lead through `value` as expected: say what msgspec said.
+        return MessageError(f"{_at(where, path)}: {error}")
+
+
+def _item(array: Any, meta: Meta | None, value: Any, i: int) -> tuple[Any, Any, str]:
+    """Item `i` of `value`, an array of type `array` (with `meta`): its type, its value and how
+    its path goes on (see extra["at"] above)."""
+    args = get_args(array)
+    fixed = get_origin(array) is tuple and args[-1] is not ...
+    report = meta.extra.get("at") if meta is not None and meta.extra else None
+    suffix = f"[{i}]" if report is None else report if type(report) is str else report[i]
+    return args[i] if fixed else args[0], value[i], suffix
+
+
+def _invalid_in(where: str, path: str, mapping: dict[str, Any], item_wire: Any) -> MessageError:
+    """The error in a dict's value, which msgspec does not say the key of: the first that fails."""
+    for key, item in mapping.items():
+        try:
+            msgspec.convert(item, item_wire)
+        except msgspec.ValidationError as exc:
+            return _invalid(where, f"{path}[{key!r}]", item, item_wire, exc)
+    raise LookupError(path)
+
+
+def _at(where: str, path: str) -> str:
+    path = path.lstrip(".")
+    return f"{where}: {path}" if where and path else where or path
+
+
+def _resolve(wire: Any, value: Any) -> tuple[Any, Meta | None]:
+    """The type `value` is checked as under `wire` (the member of ``X | None`` it is meant
+    for), without Annotated, and its Meta."""
+    meta = None
+    while True:
+        if get_origin(wire) is Annotated:
+            wire, *metas = get_args(wire)
+            meta = metas[0]
+        elif get_origin(wire) in (Union, UnionType):
+            members = [t for t in get_args(wire) if t is not NoneType]
+            wire = NoneType if value is None else members[0]
+        else:
+            return wire, meta
+
+
+@functools.cache
+def _field_types(struct: type) -> dict[str, Any]:
+    return {f.name: f.type for f in msgspec.structs.fields(struct)}
+
+
+def _conforms(value: Any, wire: Any) -> bool:
+    try:
+        msgspec.convert(value, wire)
+    except msgspec.ValidationError:
+        return False
+    return True
+
+
+def _is_number(wire: Any) -> bool:
+    """Whether `wire` is a float type (or ``float | None``)."""
+    members = get_args(wire) if get_origin(wire) in (Union, UnionType) else (wire,)
+    return any(_resolve(t, 0.0)[0] is float for t in members)
+
+
+def _finite(value: Any) -> bool:
+    return (type(value) is float and value - value == 0.0) or (
+        type(value) is int and -_MAX <= value <= _MAX
+    )
+
+
+def _as_read(value: Any, wire: Any) -> Any:
+    """`value` as the schema reads it: an int where a float belongs is that float."""
+    if type(value) is int and _is_number(wire) and _finite(value):
+        return float(value)
+    return value
+
+
+def _rule(wire: Any, value: Any, named: bool) -> str:
+    """What `value` at a place of type `wire` must be; `named`: the path ends in its name."""
+    if _is_number(wire) and not _finite(value):
+        return "must be a finite number"
+    meta = get_args(wire)[1] if get_origin(wire) is Annotated else None
+    title = meta.title if meta is not None and not named else None
+    return f"{title} must be {_phrase(wire)}" if title else f"must be {_phrase(wire)}"
+
+
+def _phrase(wire: Any) -> str:
+    meta = None
+    if get_origin(wire) is Annotated:
+        wire, meta = get_args(wire)[:2]
+        if meta.description:
+            return meta.description
+    origin = get_origin(wire)
+    if origin in (Union, UnionType):
+        return " or ".join(sorted(map(_phrase, get_args(wire)), key=lambda p: p != "null"))
+    if wire is NoneType:
+        return "null"
+    if wire is float:
+        bounds = [
+            f"{sign} {bound:g}"
+            for sign, bound in (
+                (">=", meta and meta.ge),
+                (">", meta and meta.gt),
+                ("<=", meta and meta.le),
+                ("<", meta and meta.lt),
+            )
+            if bound is not None and abs(bound) != _MAX
+        ]
+        return " and ".join(bounds) or "a finite number"
+    if wire is int:
+        return "an integer" if meta is None or meta.ge is None else f"an integer >= {meta.ge}"
+    if wire is str:
+        return "a non-empty string" if meta is not None and meta.min_length else "a string"
+    if isinstance(wire, type) and issubclass(wire, enum.Enum):
+        return "one of " + ", ".join(repr(e.value) for e in wire)
+    if origin in (list, tuple):
+        return "an array"
+    return "a JSON object"
+
 
 _QUOTE_MAX = 120
+# Bounded even for huge or deeply nested values (a plain repr of those is slow or fails).
+_REPR = reprlib.Repr()
+_REPR.maxlevel = 4
+_REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = 10
+_REPR.maxstring = _REPR.maxother = _REPR.maxlong = _QUOTE_MAX
 
 
 def _quote(value: Any) -> str:
-    text = repr(value)
+    if isinstance(value, bytes):
+        value = value[:_QUOTE_MAX]
+    text = _REPR.repr(value)
     return text if len(text) <= _QUOTE_MAX else text[: _QUOTE_MAX - 3] + "..."
 
 
@@ -982,45 +1038,14 @@ def _fail(where: str, value: Any, rule: str) -> MessageError:
     return MessageError(f"{where} = {_quote(value)}: {rule}")
 
 
-def _at(prefix: str, index: int | None) -> str:
-    return prefix if index is None else f"{prefix}[{index}]"
-
-
-def _key(prefix: str, key: str | None) -> str:
-    return prefix if key is None else f"{prefix}[{key!r}]"
-
-
-def _check_fields(d: Any, where: str, allowed: frozenset[str]) -> None:
-    """Raise unless `d` is a JSON object with exactly the fields `allowed`."""
+def _fields_error(d: Any, where: str, allowed: frozenset[str]) -> MessageError:
+    """The error of `d`, which is not a JSON object with exactly the fields `allowed`."""
     if type(d) is not dict:
-        raise _fail(where, d, "must be a JSON object")
+        return _fail(where, d, "must be a JSON object")
     missing = sorted(allowed - d.keys())
     extra = sorted(k for k in d if k not in allowed)
     names = ", ".join(sorted(allowed))
     if missing:
-        raise MessageError(f"{where}: missing field(s) {', '.join(missing)} (fields: {names})")
-    if extra:
-        raise MessageError(
-            f"{where}: unexpected field(s) {_quote(extra)}; only {names} are allowed"
-        )
-
-
-def _find_unencodable(value: Any, where: str) -> str | None:
-    """Path of the first value JSON cannot carry, for encode's error message (slow path)."""
-    if isinstance(value, Mapping):
-        for k, v in value.items():
-            found = _find_unencodable(v, f"{where}.{k}")
-            if found:
-                return found
-        return None
-    if isinstance(value, Sequence) and not isinstance(value, str | bytes):
-        for i, v in enumerate(value):
-            found = _find_unencodable(v, f"{where}[{i}]")
-            if found:
-                return found
-        return None
-    if value is None or isinstance(value, bool | str | int):
-        return None
-    if isinstance(value, float):
-        return None if value - value == 0.0 else f"{where} = {value!r}"
-    return f"{where} = {_quote(value)} ({type(value).__name__})"
+        return MessageError(f"{where}: missing field(s) {', '.join(missing)} (fields: {names})")
+    allowed_text = f"only {names} are allowed" if names else "it has no fields"
+    return MessageError(f"{where}: unexpected field(s) {_quote(extra)}; {allowed_text}")
