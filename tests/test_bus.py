@@ -9,6 +9,7 @@ import logging
 import math
 import multiprocessing
 import random
+import re
 import socket
 import threading
 import time
@@ -358,6 +359,13 @@ def act_with(**fields) -> dict:
 
 def raw(obj: object) -> bytes:
     return json.dumps(obj).encode()
+
+
+def test_a_hello_with_many_ids_names_exactly_the_duplicates():
+    robots = [f"r{i}" for i in range(20_000)] + ["r7", "r19999", "r7"]
+    body = {"robots": robots, "scenario": ""}
+    with pytest.raises(MessageError, match=re.escape("body.robots = ['r19999', 'r7']: robot ids")):
+        decode(raw(envelope(kind="hello", body=body)))
 
 
 MALFORMED = [

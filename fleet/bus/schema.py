@@ -44,6 +44,7 @@ import functools
 import re
 import reprlib
 import sys
+from collections import Counter
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, fields
 from numbers import Real
@@ -792,7 +793,8 @@ def _command(c: _Command) -> Command:
 
 def _unique(robots: list[str], m: _Envelope, field: str) -> list[str]:
     if len(set(robots)) != len(robots):
-        dupes = sorted({r for r in robots if robots.count(r) > 1})
+        # Counted in one pass: list.count per id made a 20,000-id HELLO cost seconds.
+        dupes = sorted(r for r, n in Counter(robots).items() if n > 1)
         raise _fail(f"{_label(m)}: body.{field}", dupes, "robot ids must be unique")
     return robots
 
