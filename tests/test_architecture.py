@@ -16,6 +16,7 @@ only for type checking are left out, since they never run). The rules:
 from __future__ import annotations
 
 import ast
+import tomllib
 from pathlib import Path
 
 import networkx as nx
@@ -192,3 +193,12 @@ def test_the_world_is_the_loop_and_the_wiring_in_under_500_lines():
     assert lines < WORLD_MAX_LINES, (
         f"fleet/engine/world.py has {lines} lines: give the new job a collaborator of its own"
     )
+
+
+def test_every_package_on_disk_is_one_the_distribution_ships():
+    # An editable install finds any folder; a wheel ships only the packages pyproject lists.
+    listed = set(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    on_disk = {m for m, p in MODULES.items() if p.name == "__init__.py"}
+    assert listed == on_disk
