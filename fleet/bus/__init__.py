@@ -8,7 +8,8 @@ the robots it hosts, with `link` for its socket and `responder` for calling the 
 The same classes work in one process over ``inproc://`` (pumped synchronously,
 deterministic) and across processes over ``ipc://`` and ``tcp://``. Besides commands, the bus
 carries the contract net (job announcements, bids, handbacks) and liveness (heartbeats;
-`BusEvent` says which agents joined, were lost, left or were refused).
+`BusEvent` says which agents joined, were lost, left or were refused). This room imports
+`fleet.plugins` (the contracts its messages carry) and `fleet.errors`, nothing above.
 """
 
 from fleet.bus.agent import AGENT_STATS, AgentHost

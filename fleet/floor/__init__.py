@@ -1,7 +1,9 @@
 """Floor maps: the map-file format, validation, convex decomposition and the compiled floor.
 
 `mapspec` describes the map file's structure (``fleet schema map`` prints it as JSON Schema) and
-words what it refuses; `mapfile` checks a file against it and the geometry into a `FloorSpec`.
+words what it refuses; `mapfile` checks a file against it and the geometry into a `FloorSpec`;
+`decompose` and `build` make the compiled `Floor` (`compiled`): convex regions in
+H-representation and their adjacency graph. This room imports only `fleet.errors`.
 """
 
 from fleet.floor.build import compile_floor, load_floor, slow_on_rough
