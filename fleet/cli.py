@@ -625,7 +625,10 @@ def _cmd_schema(args: argparse.Namespace, console: Console) -> int:
     if args.out is None:
         sys.stdout.write(text + "\n")  # plain: no markup or wrapping, so it pipes to a file
     else:
-        args.out.write_text(text + "\n", encoding="utf-8")
+        try:
+            args.out.write_text(text + "\n", encoding="utf-8")
+        except OSError as exc:
+            raise FleetError(f"--out {args.out}: cannot write the schema: {exc.strerror}") from None
         console.print(f"wrote the {args.kind} schema to {args.out}", highlight=False)
     return 0
 

@@ -104,3 +104,11 @@ def test_out_writes_the_schema_to_a_file(tmp_path: Path, capsys):
     assert main(["schema", "map", "--out", str(out)]) == 0
     assert str(out) in capsys.readouterr().out
     assert json.loads(out.read_text()) == msgspec.json.schema(MapFile)
+
+
+def test_out_in_a_missing_folder_is_an_error_not_a_traceback(tmp_path: Path, capsys):
+    out = tmp_path / "no-such-folder" / "scenario.schema.json"
+    assert main(["schema", "scenario", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "no-such-folder" in err and "Traceback" not in err
+    assert not out.exists()
