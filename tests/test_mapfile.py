@@ -213,6 +213,12 @@ BAD = {
         "nan",
         "finite",
     ),
+    "coordinate beyond what geometry can take": (
+        FLOOR + '[[obstacles]]\nname = "a"\nrect = [1, 1, 1e308, 2]\n',
+        "obstacles[0] (a).rect[2]",
+        "1e+308",
+        "within ±1,000,000",
+    ),
     "infinite rect": (
         FLOOR + '[[obstacles]]\nname = "a"\nrect = [1, 1, inf, 2]\n',
         "obstacles[0] (a).rect[2]",

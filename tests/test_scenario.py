@@ -112,6 +112,12 @@ def test_full_scenario(write):
         ),
         ("[jobs]\nstations = ['a', 3]\n", "jobs.stations[1]", "3", "must be of type str"),
         ("[jobs]\nmax_handbacks = -1\n", "jobs.max_handbacks", "-1", "whole number >= 0"),
+        (
+            "[[jobs.scripted]]\nat_s = 0\nstation = 'x'\ndue_s = nan\n",
+            "jobs.scripted[0].due_s",
+            "nan",
+            "finite number",
+        ),
         ("[bus]\ntimeout_s = 2\nlost_after_s = 3\n", "bus.lost_after_s", "3.0", "must not exceed"),
     ],
 )
@@ -123,6 +129,17 @@ def test_bad_values_name_file_field_and_value(write, text, field, value, rule):
     assert str(path) in message
     assert f"{field} = {value}" in message
     assert rule in message
+
+
+@pytest.mark.parametrize("kind", ["a folder", "not UTF-8"])
+def test_an_unreadable_scenario_file_is_an_error_naming_it(tmp_path, kind):
+    path = tmp_path / "s.toml"
+    if kind == "a folder":
+        path.mkdir()
+    else:
+        path.write_bytes(b"\xff\xfe[scenario]\n")
+    with pytest.raises(ScenarioError, match=r"s\.toml: \(file\) = .*cannot read the scenario file"):
+        load_scenario(path)
 
 
 def test_robot_groups_with_their_own_periods(write):

@@ -402,3 +402,15 @@ def test_a_dask_worker_with_two_threads_finishes_every_cell(tmp_path):
         summary = json.loads((result.out_dir / record["run_dir"] / "summary.json").read_text())
         solves += summary.get("solver", {}).get("steps", 0)
     assert solves > 0  # the MPC cells did solve in the worker's threads
+
+
+def test_an_unreadable_study_or_base_scenario_is_an_error_naming_it(tmp_path):
+    folder = tmp_path / "s.toml"
+    folder.mkdir()
+    with pytest.raises(StudyError, match=r"s\.toml: \(file\) = .*cannot read the study file"):
+        load_study(folder)
+    (tmp_path / "base.toml").write_bytes(b"\xff\xfe[scenario]\n")
+    study = tmp_path / "study.toml"
+    study.write_text("[study]\nscenario = 'base.toml'\n", encoding="utf-8")
+    with pytest.raises(StudyError, match=r"study\.scenario = 'base\.toml': cannot read"):
+        load_study(study)

@@ -41,7 +41,17 @@ __all__ = [
 # fails every comparison.
 _LARGEST = sys.float_info.max
 
-Coordinate = Annotated[float, Meta(ge=-_LARGEST, le=_LARGEST)]
+#: Metres on the floor. Bounded well inside what geometry can square without overflow: at
+#: 1e308 shapely fails with NaN/Inf, at 1e160 numpy overflows.
+COORDINATE_LIMIT_M = 1e6
+Coordinate = Annotated[
+    float,
+    Meta(
+        ge=-COORDINATE_LIMIT_M,
+        le=COORDINATE_LIMIT_M,
+        extra={"rule": "must be a finite number of metres within ±1,000,000"},
+    ),
+]
 NonNegative = Annotated[float, Meta(ge=0, le=_LARGEST)]
 Positive = Annotated[float, Meta(gt=0, le=_LARGEST)]
 

@@ -277,6 +277,8 @@ def load_scenario(path: str | Path) -> Scenario:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ScenarioError(src, "(file)", src, "no such scenario file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(src, "(file)", src, f"cannot read the scenario file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
     return parse_scenario(raw, path)

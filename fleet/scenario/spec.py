@@ -49,6 +49,7 @@ __all__ = [
 # fails every comparison.
 _LARGEST = sys.float_info.max
 
+Finite = Annotated[float, Meta(ge=-_LARGEST, le=_LARGEST)]
 Positive = Annotated[float, Meta(gt=0, le=_LARGEST)]
 NonNegative = Annotated[float, Meta(ge=0, le=_LARGEST)]
 PositiveInt = Annotated[int, Meta(gt=0)]
@@ -165,7 +166,7 @@ class ScriptedJobTable(_Table, kw_only=True):
 
     at_s: Annotated[NonNegative, Meta(description="Release time (s).")]
     station: Annotated[str, Meta(description="The destination station.")]
-    due_s: Annotated[float | None, Meta(description="Due time (s).")] = None
+    due_s: Annotated[Finite | None, Meta(description="Due time (s).")] = None
     tasks: Annotated[
         list[PrintTaskTable],
         Meta(description="What is printed on the way, in order (not with part)."),

@@ -270,6 +270,8 @@ def load_study(path: str | Path) -> Study:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise StudyError(src, "(file)", src, "no such study file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StudyError(src, "(file)", src, f"cannot read the study file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
     _no_unknown(src, "", raw, ("study", "grid"))
@@ -290,6 +292,10 @@ def load_study(path: str | Path) -> Study:
         base_raw = tomllib.loads(base.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise StudyError(src, "study.scenario", base_value, f"no such file ({base})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StudyError(
+            src, "study.scenario", base_value, f"cannot read the scenario: {exc}"
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(
             src, "study.scenario", base_value, f"the scenario is not valid TOML: {exc}"
