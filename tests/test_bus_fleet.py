@@ -483,6 +483,8 @@ def test_round_checks_its_announcements():
             ex.round(1, 0.0, [], [Announcement("j", 0, 0, 0, 0), Announcement("j", 1, 1, 0, 0)])
         with pytest.raises(MessageError, match=r"announcements\[0\]: announcement.x = nan"):
             ex.round(2, 0.0, [], [Announcement("j", math.nan, 0, 0, 0)])
+        with pytest.raises(MessageError, match=r"announcements\[1\] = \{'job': 'k'\}: must be a"):
+            ex.round(3, 0.0, [], [Announcement("j", 0, 0, 0, 0), {"job": "k"}])
 
 
 # --- liveness, departure and rejoin ---------------------------------------------------------------

@@ -11,6 +11,7 @@ from __future__ import annotations
 import errno
 import math
 import time
+from collections import Counter
 from collections.abc import Sequence
 
 from fleet.bus.answers import Answers
@@ -41,10 +42,6 @@ def announcement_offers(
     MessageError
         If an announcement is no `Announcement` or cannot be encoded, naming it.
     """
-    announced = [a.job for a in announcements]
-    if len(set(announced)) != len(announced):
-        dupes = sorted({j for j in announced if announced.count(j) > 1})
-        raise ValueError(f"round tick {tick}: jobs {dupes} announced more than once")
     offers = []
     for i, a in enumerate(announcements):
         if not isinstance(a, Announcement):
@@ -56,6 +53,10 @@ def announcement_offers(
             offers.append(announcement_to_wire(a))
         except MessageError as exc:
             raise MessageError(f"round tick {tick}: announcements[{i}]: {exc}") from None
+    announced = [a.job for a in announcements]
+    if len(set(announced)) != len(announced):
+        dupes = sorted(j for j, n in Counter(announced).items() if n > 1)
+        raise ValueError(f"round tick {tick}: jobs {dupes} announced more than once")
     return announced, offers
 
 
