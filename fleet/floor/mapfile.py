@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import re
 import tomllib
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -149,11 +149,12 @@ class _Checks:
         # Cross-checks, now that every name is known.
         for label, raw, o in obstacles:
             self.within(o.polygon, boundary, label, raw, "obstacle")
-        speed_zones = self.zones(zones, [o for _, _, o in obstacles], boundary)
+        solid = tuple(o for _, _, o in obstacles)
+        speed_zones = self.zones(zones, solid, boundary)
         for label, raw, r in rough:
             self.within(r.polygon, boundary, label, raw, "rough area")
         for label, s in stations:
-            self.station(label, s, boundary, [o for _, _, o in obstacles], floor.clearance)
+            self.station(label, s, boundary, solid, floor.clearance)
 
         return FloorSpec(
             source=self.source,
@@ -161,7 +162,7 @@ class _Checks:
             boundary=boundary,
             default_v_max=_speed(floor.default_v_max),
             clearance=floor.clearance,
-            obstacles=tuple(o for _, _, o in obstacles),
+            obstacles=solid,
             zones=tuple(speed_zones),
             stations=tuple(s for _, s in stations),
             rough_areas=tuple(r for _, _, r in rough),
@@ -289,7 +290,7 @@ class _Checks:
     def zones(
         self,
         zones: list[tuple[str, Mapping[str, Any], ZoneEntry, Polygon | None]],
-        obstacles: list[Obstacle],
+        obstacles: Sequence[Obstacle],
         boundary: Polygon,
     ) -> list[SpeedZone]:
         by_name = {zone.name: (label, raw, zone, own) for label, raw, zone, own in zones}
@@ -343,7 +344,7 @@ class _Checks:
         label: str,
         s: Station,
         boundary: Polygon,
-        obstacles: list[Obstacle],
+        obstacles: Sequence[Obstacle],
         clearance: float,
     ) -> None:
         field = f"{label}.at"
