@@ -145,7 +145,6 @@ class Exchange:
         self.lost_after_s = min(float(lost_after_s), self.timeout_s)
         self.log = log if log is not None else logging.getLogger("fleet.bus")
         self.name = name
-        self.scenario = scenario
         bind_address = address if address is not None else new_inproc_address()
         self.stats: dict[str, int] = dict.fromkeys(EXCHANGE_STATS, 0)
         self._roster = Roster(scenario, self.stats, self.log)
@@ -187,6 +186,11 @@ class Exchange:
             host.heartbeat_s = None
             self._router.hosts.append(host)
             self._roster.mark_local(host.identity)
+
+    @property
+    def scenario(self) -> str:
+        """The fingerprint agents must have been set up for ('': not checked)."""
+        return self._roster.scenario
 
     @property
     def agents(self) -> dict[str, frozenset[str]]:
