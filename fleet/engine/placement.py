@@ -12,8 +12,6 @@ from collections import defaultdict
 from collections.abc import Iterator
 from typing import Any
 
-import networkx as nx
-
 from fleet.errors import ScenarioError
 from fleet.floor import Floor, Station
 from fleet.scenario import Scenario, ScriptedJob
@@ -27,12 +25,6 @@ class Placement:
     def __init__(self, scenario: Scenario, floor: Floor) -> None:
         self.scenario = scenario
         self.floor = floor
-        #: Each region's connected part of the floor: regions of one part reach each other.
-        self.components = {
-            region: n
-            for n, members in enumerate(nx.connected_components(floor.graph))
-            for region in members
-        }
 
     def start_positions(self) -> list[tuple[float, float]]:
         """Distinct start positions around each group's start stations (cycled), clear of each
@@ -65,7 +57,7 @@ class Placement:
     def check_reachable(self, homes: list[tuple[float, float]], destinations: list[str]) -> None:
         """Every job destination must be reachable from every robot's start: a job no robot can
         reach would sit assigned forever."""
-        starts = {self.components[self.floor.locate(*h)] for h in homes}
+        starts = {self._part(*h) for h in homes}
         jobs = self.scenario.jobs
         if jobs.mode == "scripted":
             targets = []
@@ -77,7 +69,7 @@ class Placement:
             targets = [("jobs.stations", name) for name in destinations]
         for field_name, name in targets:
             s = self.floor.station(name)
-            part = self.components.get(self.floor.locate(s.x, s.y))
+            part = self._part(s.x, s.y)
             if starts != {part}:
                 raise ScenarioError(
                     self.scenario.source,
@@ -135,10 +127,15 @@ class Placement:
             "use fewer robots or more start stations",
         )
 
+    def _part(self, x: float, y: float) -> int | None:
+        """The connected part of the floor the point lies in; None off the free floor."""
+        region = self.floor.locate(x, y)
+        return None if region is None else int(self.floor.components[region])
+
     def _spots_around(self, station: Station, spacing: float) -> Iterator[tuple[float, float]]:
         """Free spots on a square grid around `station`, ring by ring, reachable from it."""
-        components = self.components
-        home = components.get(self.floor.locate(station.x, station.y))
+        components = self.floor.components
+        home = self._part(station.x, station.y)
         for ring in range(0, 60):
             for dx in range(-ring, ring + 1):
                 for dy in range(-ring, ring + 1):

@@ -141,6 +141,16 @@ class Floor:
         return tuple(self.spec.boundary.bounds)  # type: ignore[return-value]
 
     @cached_property
+    def components(self) -> np.ndarray:
+        """Each region's connected part of the floor, numbered: regions of one part reach each
+        other, regions of two parts never do (read-only)."""
+        part = np.zeros(len(self.regions), dtype=np.intp)
+        for n, members in enumerate(nx.connected_components(self.graph)):
+            part[list(members)] = n
+        part.flags.writeable = False
+        return part
+
+    @cached_property
     def free_space_tolerant(self) -> Polygon | MultiPolygon:
         """The free space grown by `TOLERANCE` (prepared): forgives rounding on its boundary."""
         grown = self.free_space.buffer(TOLERANCE, join_style="mitre")

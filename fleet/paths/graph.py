@@ -66,9 +66,7 @@ class PortalGraph:
         # Fastest possible speed along any direction: keeps the A* heuristic admissible.
         lim = limits.per_region
         self._top_speed = float(np.max(np.hypot(lim[:, 0], lim[:, 1])))
-        self._component = np.zeros(len(floor.regions), dtype=np.intp)
-        for c, members in enumerate(nx.connected_components(floor.graph)):
-            self._component[list(members)] = c
+        self._component = floor.components
 
         self._lock = threading.Lock()
         self._pos, self._region_nodes, self._graph = self._build_graph()
