@@ -85,8 +85,7 @@ class Dispatch:
     def run_pending(self) -> None:
         """Run a dispatch requested at this instant now, ahead of its callback (which then
         finds nothing to do)."""
-        if self._scheduled:
-            self._run(None)
+        self._run(None)  # a no-op unless a dispatch is scheduled
 
     def _run(self, _event: simpy.Event | None) -> None:
         """Ask the assigner to give the open jobs to the idle robots (the SimPy callback of

@@ -184,10 +184,11 @@ def task_rows(jobs: Iterable[JobRecord]) -> list[tuple[str, str, str, float, flo
 
 
 def cap_rows(
-    jobs: Iterable[JobRecord], caps: Mapping[str, float]
+    tasks: Iterable[tuple[str, str, str, float, float]], caps: Mapping[str, float]
 ) -> list[tuple[str, str, str, float, float, float]]:
-    """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows."""
-    return [(*row, caps[row[2]]) for row in task_rows(jobs) if row[2] in caps]
+    """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows, from
+    the `task_rows` of the run."""
+    return [(*row, caps[row[2]]) for row in tasks if row[2] in caps]
 
 
 def job_rows(jobs: Iterable[JobRecord], now: float) -> list[dict[str, Any]]:

@@ -324,14 +324,15 @@ class World:
         """Write the run directory (see `fleet.engine.recorder`) after `run`."""
         if self.result is None:
             raise FleetError("write needs a finished run: call run() first")
+        tasks = self.task_rows()
         self.recorder.write(
             out,
             self.result.summary,
             self.floor,
             self.result.safety.examples,
-            self.cap_rows(),
+            cap_rows(tasks, self.scenario.print_caps),
             self.job_rows(),
-            self.task_rows(),
+            tasks,
         )
 
     def task_rows(self) -> list[tuple[str, str, str, float, float]]:
@@ -340,7 +341,7 @@ class World:
 
     def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
         """Every print cap a robot was under, as ``caps.csv`` rows (see `summary.cap_rows`)."""
-        return cap_rows(self.jobs, self.scenario.print_caps)
+        return cap_rows(self.task_rows(), self.scenario.print_caps)
 
     def job_rows(self) -> list[dict[str, Any]]:
         """One row per job for ``jobs.csv`` (see `summary.job_rows`)."""
