@@ -25,6 +25,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if args.command == "serve":
+        # The engine's operator sees agents join and leave, not only refusals and losses.
+        logging.getLogger("fleet.bus").setLevel(logging.INFO)
     console = Console(stderr=False)
     try:
         return args.handler(args, console)

@@ -37,6 +37,7 @@ from fleet.bus import (
     parse_address,
     transport,
 )
+from fleet.bus.schema import MAX_MESSAGE_BYTES, MAX_ROBOTS, MAX_TEXT_CHARS
 from fleet.bus.transport import new_inproc_address
 from fleet.errors import FleetError, MessageError
 from fleet.plugins import (
@@ -362,10 +363,39 @@ def raw(obj: object) -> bytes:
 
 
 def test_a_hello_with_many_ids_names_exactly_the_duplicates():
-    robots = [f"r{i}" for i in range(20_000)] + ["r7", "r19999", "r7"]
+    robots = [f"r{i}" for i in range(MAX_ROBOTS - 3)] + ["r7", f"r{MAX_ROBOTS - 4}", "r7"]
     body = {"robots": robots, "scenario": ""}
-    with pytest.raises(MessageError, match=re.escape("body.robots = ['r19999', 'r7']: robot ids")):
+    names = str(sorted(["r7", f"r{MAX_ROBOTS - 4}"]))
+    with pytest.raises(MessageError, match=re.escape(f"body.robots = {names}: robot ids")):
         decode(raw(envelope(kind="hello", body=body)))
+
+
+def test_a_hello_naming_more_robots_than_allowed_is_rejected_by_its_length():
+    robots = [f"r{i}" for i in range(2 * MAX_ROBOTS)] + ["r7"]
+    body = {"robots": robots, "scenario": ""}
+    with pytest.raises(MessageError, match=f"holds {2 * MAX_ROBOTS + 1:,} items: at most"):
+        decode(raw(envelope(kind="hello", body=body)))
+
+
+@pytest.mark.parametrize(
+    ("body", "said"),
+    [
+        ({"reason": "x" * (MAX_TEXT_CHARS + 1)}, "body.reason = 'xxx"),
+        ({"reason": "ok", "extra": ["x"] * 10}, "unexpected field(s) ['extra']"),
+    ],
+)
+def test_a_bye_with_too_long_a_reason_or_an_extra_field_is_rejected(body, said):
+    with pytest.raises(MessageError, match=re.escape(said)):
+        decode(raw(envelope(kind="bye", body=body)))
+
+
+def test_a_frame_over_the_size_limit_is_rejected_unread():
+    frame = raw(envelope(kind="bye", body={"reason": "x" * 100}))
+    assert decode(frame, max_bytes=len(frame)).body == {"reason": "x" * 100}
+    with pytest.raises(MessageError, match=f"of {len(frame):,} bytes: longer than"):
+        decode(frame, max_bytes=len(frame) - 1)
+    with pytest.raises(MessageError, match="longer than the bus's limit of 2,097,152 bytes"):
+        decode(b"[" * (MAX_MESSAGE_BYTES + 1))
 
 
 MALFORMED = [
@@ -722,7 +752,7 @@ def bye_with(reason: bytes = b'"x"', tick: bytes = b"3") -> bytes:
         (bye_with(reason=b"[" * 100_000 + b"]" * 100_000), "at `$.body.reason`"),
         (bye_with(tick=b"1" + b"0" * 5000), "cannot be read (Integer value out of range"),
         (bye_with(tick=b"1" + b"0" * 400 + b".0"), "BYE message from 'a': tick = inf: must be"),
-        (raw(envelope(sender="s" * 5_000_000, tick=-1)), "tick = -1: must be an integer >= 0"),
+        (raw(envelope(sender="s" * 5_000_000, tick=-1)), "holds 5,000,000 characters: at most"),
         (b"\xff" * 5_000_000, "is not UTF-8"),
         (b" " * 5_000_000, "is not valid JSON"),
         (raw(envelope(body={"reason": ["x"] * 1_000_000})), "body.reason = ['x', 'x'"),
@@ -740,7 +770,7 @@ def bye_with(reason: bytes = b'"x"', tick: bytes = b"3") -> bytes:
 )
 def test_huge_or_deeply_nested_frames_are_rejected_briefly(frame, says):
     with pytest.raises(MessageError) as info:
-        decode(frame)
+        decode(frame, max_bytes=len(frame))  # past the size check: the parser's own errors
     assert says in str(info.value) and len(str(info.value)) < 400
 
 
@@ -750,8 +780,9 @@ def test_huge_valid_messages_are_read():
         "observations": [replace(OBS_FULL, robot=f"r{i}") for i in range(2000)],
         "announcements": [],
     }
-    assert decode(encode(MessageKind.OBSERVE, "exchange", 7, body)).body == body
-    reason = "é" * 5_000_000
+    frame = encode(MessageKind.OBSERVE, "exchange", 7, body)
+    assert decode(frame).body == body
+    reason = "é" * MAX_TEXT_CHARS  # 2 bytes each in UTF-8: the limit counts characters
     assert decode(encode(MessageKind.BYE, "a", 1, {"reason": reason})).body == {"reason": reason}
 
 
@@ -1013,14 +1044,16 @@ def test_injected_garbage_is_dropped_and_counted_while_rounds_go_on():
             intruder.send_multipart([b"two", b"frames"])
             intruder.send(raw(envelope(version=99)))
             cmds = {"r0": Command(9.0, 9.0)}
-            intruder.send(act("intruder", 2, cmds))  # stale: tick 2 is over
-            intruder.send(act("intruder", 4, cmds))  # current, but not asked
+            # Its HELLO accepted nothing, so it is no agent: its ACTs are a stranger's.
+            intruder.send(act("intruder", 2, cmds))
+            intruder.send(act("intruder", 4, cmds))
             intruder.send(encode(MessageKind.OBSERVE, "intruder", 4, BODIES[MessageKind.OBSERVE]))
-            intruder.send(act("impostor", 4, cmds))  # not the name it gave
+            intruder.send(act("impostor", 4, cmds))
             stranger.send(act("stranger", 4, cmds))  # never said HELLO
             result = ex.round(4, 1.0, [observation(r, 4) for r in robots])
             assert result == {r: expected(observation(r, 4)) for r in robots}
             welcome = decode(intruder.recv(), expect=(MessageKind.WELCOME,))
+            agents = ex.agents
         finally:
             intruder.close(linger=0)
             stranger.close(linger=0)
@@ -1030,11 +1063,13 @@ def test_injected_garbage_is_dropped_and_counted_while_rounds_go_on():
         "r0": "already hosted by agent 'a'",
         "ghost": "unknown robot: not part of this run",
     }
+    assert sorted(agents) == ["a", "b"]
     assert stats["robots_rejected"] == 2
-    assert stats["stale"] == 1
-    # garbage, two frames, version 99, unasked ACT, OBSERVE to the engine, impostor, stranger
-    assert stats["messages_rejected"] == 7
+    assert stats["stale"] == 0
+    # garbage, two frames, version 99, three ACTs and an OBSERVE from no agent, a stranger's
+    assert stats["messages_rejected"] == 8
     assert stats["commands_missing"] == 0 and stats["timeouts"] == 0
+    assert stats["peers_cut_off"] == 0
 
 
 def test_commands_for_robots_not_asked_are_rejected_and_silent_robots_missing():

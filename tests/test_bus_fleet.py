@@ -643,7 +643,8 @@ def test_an_agent_set_up_for_another_scenario_is_refused_and_told_to_stop(caplog
         ]
         assert ex.agents == {"same": {"r1"}, "unchecked": {"r2"}}
         assert ex.stats["agents_refused"] == 1 and ex.stats["robots_rejected"] == 1
-    assert any(f"refused agent other: {why}" in r.getMessage() for r in caplog.records)
+    said = f"from peer 'other' (refused): HELLO refused (1 robots claimed): r3: {why}"
+    assert any(said in r.getMessage() for r in caplog.records)
 
 
 def test_liveness_and_scenario_settings_are_checked():

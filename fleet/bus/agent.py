@@ -42,7 +42,7 @@ import zmq
 
 from fleet.bus.link import Link
 from fleet.bus.responder import Responder
-from fleet.bus.schema import Message, MessageKind
+from fleet.bus.schema import MAX_MESSAGE_BYTES, Message, MessageKind
 from fleet.bus.transport import ROUTING_ID_MAX, default_context
 from fleet.errors import PluginError
 from fleet.plugins import Controller
@@ -100,6 +100,9 @@ class AgentHost:
     curve:
         CurveZMQ client keys (`fleet.bus.security.ClientCurve`) for an exchange that requires
         them; None connects in the clear.
+    max_message_bytes:
+        Longest message taken in or sent; the exchange's must be the same (both read it from
+        the scenario's ``[bus] max_message_bytes``).
 
     Attributes
     ----------
@@ -130,6 +133,7 @@ class AgentHost:
         heartbeat_s: float | None = 0.5,
         scenario: str = "",
         curve: ClientCurve | None = None,
+        max_message_bytes: int = MAX_MESSAGE_BYTES,
     ) -> None:
         if heartbeat_s is not None and not (
             isinstance(heartbeat_s, int | float)
@@ -179,7 +183,14 @@ class AgentHost:
         self.scenario = scenario
         self._responder = Responder(name, self.controllers, self.stats, self.log)
         self._link = Link(
-            self.context, address, self.identity, curve, name=name, stats=self.stats, log=self.log
+            self.context,
+            address,
+            self.identity,
+            curve,
+            name=name,
+            stats=self.stats,
+            log=self.log,
+            max_message_bytes=max_message_bytes,
         )
         self.socket = self._link.socket
         hello = {"robots": list(self.controllers), "scenario": scenario}

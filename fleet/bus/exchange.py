@@ -40,10 +40,11 @@ from typing import TYPE_CHECKING
 
 import zmq
 
+from fleet.bus.ledger import CUT_OFF_AFTER, Junk
 from fleet.bus.lockstep import Round, announcement_offers
 from fleet.bus.roster import BusEvent, BusEventKind, Member, Roster
 from fleet.bus.router import Router
-from fleet.bus.schema import Message, MessageKind
+from fleet.bus.schema import MAX_MESSAGE_BYTES, Message, MessageKind
 from fleet.bus.transport import default_context, new_inproc_address
 from fleet.errors import MessageError
 from fleet.plugins import Announcement, Bid, Command, Handback, Observation
@@ -73,6 +74,8 @@ EXCHANGE_STATS = (
     "handbacks_rejected",  # for robots the agent does not host, or repeated
     "agents_lost",  # agents declared lost (silent for lost_after_s, or unreachable)
     "agents_refused",  # HELLOs refused as a whole (scenario differs)
+    "peers_cut_off",  # connections cut off for sending junk (fleet.bus.ledger)
+    "messages_ignored",  # frames from cut-off connections, dropped unread
 )
 
 
@@ -104,6 +107,14 @@ class Exchange:
     curve:
         CurveZMQ server keys (`fleet.bus.security.ServerCurve`): the ROUTER then only talks to
         agents whose public key is authorised. None: no encryption or authentication.
+    max_message_bytes:
+        Longest message taken in or sent (`fleet.bus.schema.MAX_MESSAGE_BYTES` by default).
+        A peer sending a longer one over ipc or tcp is disconnected by ZeroMQ before the
+        message is read; one the exchange would send is not sent (logged as an error).
+    cut_off_after:
+        Refused messages (malformed, oversized, from a stranger or an impostor, refused
+        HELLOs) after which a connection is cut off: its messages are dropped unread, and
+        an agent on it is lost (`fleet.bus.ledger`).
 
     Attributes
     ----------
@@ -128,7 +139,13 @@ class Exchange:
         name: str = "exchange",
         scenario: str = "",
         curve: ServerCurve | None = None,
+        max_message_bytes: int = MAX_MESSAGE_BYTES,
+        cut_off_after: int = CUT_OFF_AFTER,
     ) -> None:
+        if type(max_message_bytes) is not int or max_message_bytes < 1024:
+            raise ValueError(
+                f"exchange max_message_bytes = {max_message_bytes!r}: must be an integer >= 1024"
+            )
         if not (isinstance(timeout_s, int | float) and math.isfinite(timeout_s) and timeout_s > 0):
             raise ValueError(f"exchange timeout_s = {timeout_s!r}: must be a positive number")
         if not (
@@ -155,8 +172,11 @@ class Exchange:
             roster=self._roster,
             on_hello=self._hello,
             on_message=self._receive,
+            on_cut_off=self._cut_off,
             stats=self.stats,
             log=self.log,
+            max_message_bytes=max_message_bytes,
+            cut_off_after=cut_off_after,
         )
         self.socket = self._router.socket
         self.address = self._router.address
@@ -324,6 +344,23 @@ class Exchange:
             # An agent set up for another scenario can do no good here: tell it to stop.
             bye = self._round.message(MessageKind.BYE, {"reason": admission.refusal})
             self._router.send(identity, bye, name)
+        if identity in self._roster.members:
+            if admission.rejected:
+                self.log.warning("exchange: agent %s may not host %s", name, admission.refused)
+        else:
+            # Nothing of it accepted: logged (once at warning level) and counted by the
+            # ledger, which cuts off a peer that keeps saying such HELLOs.
+            claimed = len(msg.body["robots"])
+            why = f"HELLO refused ({claimed} robots claimed): {admission.refused or 'none'}"
+            self._router.ledger.charge(identity, f"peer {name!r}", Junk.REFUSED, why)
+
+    def _cut_off(self, member: Member) -> None:
+        """A known agent sent junk until cut off: it is lost, its robots unhosted."""
+        why = f"cut off after {self._router.ledger.cut_off_after} refused messages"
+        self._round.declare_lost(member, why)
+        self._router.send_to_lost(
+            member.identity, self._round.message(MessageKind.BYE, {"reason": why}), member.name
+        )
 
     def _receive(self, member: Member, msg: Message) -> None:
         kind = msg.kind

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import zmq
 
-from fleet.bus.schema import Message, MessageKind, decode, encode
+from fleet.bus.schema import MAX_MESSAGE_BYTES, Message, MessageKind, decode, encode
 from fleet.bus.transport import connect_dealer
 from fleet.errors import MessageError
 
@@ -44,6 +44,8 @@ class Link:
         are counted into them.
     log:
         Where dropped messages and failed sends are logged.
+    max_message_bytes:
+        Longest message taken in (the socket's ``MAXMSGSIZE`` and `decode`'s limit) or sent.
 
     Attributes
     ----------
@@ -63,15 +65,16 @@ class Link:
         name: str,
         stats: dict[str, int],
         log: logging.Logger,
+        max_message_bytes: int = MAX_MESSAGE_BYTES,
     ) -> None:
         self.name = name
         self.stats = stats
         self.log = log
+        self.max_message_bytes = max_message_bytes
         self.last_sent = time.monotonic()
-        if curve is None:
-            self.socket = connect_dealer(context, address, identity)
-        else:
-            self.socket = connect_dealer(context, address, identity, curve=curve)
+        self.socket = connect_dealer(
+            context, address, identity, curve=curve, max_message_bytes=max_message_bytes
+        )
 
     def receive(self, timeout_ms: int | None, handle: Callable[[Message], None]) -> bool:
         """Pass one incoming message to `handle`, waiting up to `timeout_ms` (None: forever).
@@ -135,7 +138,7 @@ class Link:
             self.reject(f"{len(frames)} frames, expected 1")
             return None
         try:
-            return decode(frames[0], _EXPECT)
+            return decode(frames[0], _EXPECT, max_bytes=self.max_message_bytes)
         except MessageError as exc:
             self.reject(str(exc))
             return None
@@ -148,6 +151,17 @@ class Link:
     def send(self, kind: MessageKind, tick: int, body: dict) -> None:
         """Send one message, or log why it could not go."""
         raw = encode(kind, self.name, tick, body)
+        if len(raw) > self.max_message_bytes:
+            # The exchange's socket would drop the connection rather than read it.
+            self.log.error(
+                "agent %s: %s not sent: %d bytes, over the bus's limit of %d (raise the"
+                " scenario's [bus] max_message_bytes, or spread the robots over more agents)",
+                self.name,
+                kind.name,
+                len(raw),
+                self.max_message_bytes,
+            )
+            return
         try:
             self.socket.send(raw, _NOBLOCK)
         except zmq.ZMQError as exc:

@@ -71,6 +71,7 @@ class Admission:
     accepted: list[str]  # in the order claimed, including robots it hosted already
     rejected: dict[str, str]  # robot -> why
     refusal: str | None  # why the agent as a whole is turned away, or None
+    refused: str = ""  # the rejected robots grouped by reason, for the log ("" if none)
 
 
 class Roster:
@@ -138,7 +139,8 @@ class Roster:
         """Take in a HELLO: which of the `claimed` robots the agent `name` may host.
 
         `scenario` is the fingerprint the HELLO names. Refusals are counted, logged and
-        recorded as events; so is a join.
+        recorded as events; so is a join. An agent that hosts no robot after its HELLO is not
+        kept as a member.
         """
         member = self.members.get(identity)
         namesake = self.by_name.get(name)
@@ -159,9 +161,6 @@ class Roster:
         else:
             if member is None:
                 member = Member(identity, name, local=identity in self._local)
-                self.members[identity] = member
-                self.by_name[name] = member
-                self.unreachable.pop(identity, None)
             member.seen = time.monotonic()
             for robot in claimed:
                 owner = self.owner.get(robot)
@@ -175,22 +174,31 @@ class Roster:
                     accepted.append(robot)
                     member.robots.add(robot)
                     self.owner[robot] = member
+            # Only an agent hosting something is kept: a stream of HELLOs naming no robot of
+            # the run, each from a new name, must not fill the roster.
+            if member.robots and self.members.get(identity) is not member:
+                self.members[identity] = member
+                self.by_name[name] = member
+                self.unreachable.pop(identity, None)
         self.stats["robots_rejected"] += len(rejected)
         if refuse_all:
             self.stats["agents_refused"] += 1
-            self.log.warning("exchange: refused agent %s: %s", name, reason)
-        else:
-            for robot, why in rejected.items():
-                self.log.warning("exchange: agent %s may not host robot %s: %s", name, robot, why)
-        self.log.debug("exchange: agent %s hosts %d robots", name, len(accepted))
         if joined:
+            self.log.info(
+                "exchange: agent %s joined, hosting %d robots: %s",
+                name,
+                len(member.robots),
+                _some(sorted(joined)),
+            )
             self._events.append(BusEvent(BusEventKind.JOINED, name, tuple(sorted(joined))))
         by_reason: dict[str, list[str]] = {}
         for robot, why in rejected.items():
             by_reason.setdefault(why, []).append(robot)
         for why, robots in by_reason.items():
             self._events.append(BusEvent(BusEventKind.REFUSED, name, tuple(sorted(robots)), why))
-        return Admission(accepted, rejected, reason if refuse_all else None)
+        # Logged by the exchange: it knows whether the peer keeps sending such HELLOs.
+        refused = "; ".join(f"{_some(sorted(r))}: {why}" for why, r in by_reason.items())
+        return Admission(accepted, rejected, reason if refuse_all else None, refused)
 
     def leave(self, member: Member, reason: str) -> None:
         """Forget an agent that said BYE; its robots are unhosted."""
@@ -230,3 +238,9 @@ class Roster:
         """The events since the previous call, oldest first (and forget them)."""
         events, self._events = self._events, []
         return events
+
+
+def _some(robots: list[str], shown: int = 10) -> str:
+    """Up to `shown` robot ids, and how many more: a log line stays short."""
+    more = f" and {len(robots) - shown} more" if len(robots) > shown else ""
+    return f"{', '.join(robots[:shown])}{more}"

@@ -3,12 +3,15 @@
 Frames are taken in a batch at a time (`Router.take_in`), so that a flood cannot keep a pass,
 and the deadline check after it, from ending. Each message is checked before it is passed on:
 a well-formed HELLO from anyone, any other kind only from a known agent on its own connection
-(which refreshes its last-seen time); the rest is counted, logged and dropped. Messages go out
-without blocking, and a failure is counted and logged, never raised (`Router.send`).
+(which refreshes its last-seen time); the rest is counted, logged and dropped, and counted
+against the connection it came on (`fleet.bus.ledger`): a peer that keeps sending junk is cut
+off, and a known agent cut off is lost. Messages go out without blocking, and a failure, or a
+message longer than the bus's limit, is counted and logged, never raised (`Router.send`).
 """
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import time
@@ -17,8 +20,9 @@ from typing import TYPE_CHECKING
 
 import zmq
 
+from fleet.bus.ledger import Junk, PeerLedger
 from fleet.bus.roster import Member, Roster
-from fleet.bus.schema import Message, MessageKind, decode
+from fleet.bus.schema import MAX_MESSAGE_BYTES, Message, MessageKind, decode
 from fleet.bus.transport import bind_router
 from fleet.errors import MessageError
 
@@ -53,11 +57,17 @@ class Router:
         Called with the routing id and the message of each valid HELLO.
     on_message:
         Called with the sending agent and the message of each other valid message.
+    on_cut_off:
+        Called with a known agent that the ledger has just cut off (the exchange loses it).
     stats:
-        The exchange's counters (`EXCHANGE_STATS`); messages received, rejected, sent and not
-        sent are counted into them.
+        The exchange's counters (`EXCHANGE_STATS`); messages received, rejected, ignored,
+        sent and not sent, and peers cut off, are counted into them.
     log:
         Where dropped messages and failed sends are logged.
+    max_message_bytes:
+        Longest message taken in (the socket's ``MAXMSGSIZE`` and `decode`'s limit) or sent.
+    cut_off_after:
+        Refused messages after which a peer is cut off (`fleet.bus.ledger`).
 
     Attributes
     ----------
@@ -67,6 +77,8 @@ class Router:
         The bound address.
     hosts:
         The in-process hosts (`Exchange.add_local`), pumped and closed with the router.
+    ledger:
+        The refusals per peer, and who is cut off.
     """
 
     def __init__(
@@ -78,23 +90,32 @@ class Router:
         roster: Roster,
         on_hello: Callable[[bytes, Message], None],
         on_message: Callable[[Member, Message], None],
+        on_cut_off: Callable[[Member], None],
         stats: dict[str, int],
         log: logging.Logger,
+        max_message_bytes: int = MAX_MESSAGE_BYTES,
+        cut_off_after: int = 100,
     ) -> None:
         self.stats = stats
         self.log = log
         self.hosts: list[AgentHost] = []
+        self.max_message_bytes = max_message_bytes
+        self.ledger = PeerLedger(stats, log, cut_off_after=cut_off_after)
         self._roster = roster
         self._on_hello = on_hello
         self._on_message = on_message
+        self._on_cut_off = on_cut_off
         self._guard: CurveGuard | None = None
+        limit = max_message_bytes
         if curve is None:
-            self.socket, self.address = bind_router(context, address)
+            self.socket, self.address = bind_router(context, address, max_message_bytes=limit)
         else:
             # The authenticator must be answering before the first handshake.
             self._guard = curve.start(context, log)
             try:
-                self.socket, self.address = bind_router(context, address, curve=curve, log=log)
+                self.socket, self.address = bind_router(
+                    context, address, curve=curve, log=log, max_message_bytes=limit
+                )
             except BaseException:
                 self._guard.stop()
                 raise
@@ -117,36 +138,46 @@ class Router:
     def _handle(self, frames: list[bytes]) -> None:
         self.stats["messages_received"] += 1
         identity = frames[0]
+        if self.ledger.ignores(identity):
+            return
         if len(frames) != 2:
-            self.reject(identity, f"{len(frames) - 1} frames after the routing id, expected 1")
+            why = f"{len(frames) - 1} frames after the routing id, expected 1"
+            self.reject(identity, why, Junk.FRAMES)
             return
         try:
-            msg = decode(frames[1], _EXPECT)
+            msg = decode(frames[1], _EXPECT, max_bytes=self.max_message_bytes)
         except MessageError as exc:
-            self.reject(identity, str(exc))
+            junk = Junk.OVERSIZED if len(frames[1]) > self.max_message_bytes else Junk.MALFORMED
+            self.reject(identity, str(exc), junk)
             return
         if msg.kind is MessageKind.HELLO:
             self._on_hello(identity, msg)
             return
         member = self._roster.members.get(identity)
         if member is None:
-            self.reject(identity, f"{msg.kind.name} from unknown sender {msg.sender!r} (no HELLO)")
+            why = f"{msg.kind.name} from unknown sender {msg.sender!r} (no HELLO)"
+            self.reject(identity, why, Junk.STRANGER)
             return
         if msg.sender != member.name:
-            self.reject(
-                identity,
-                f"{msg.kind.name} from {msg.sender!r} on the connection of agent {member.name!r}",
-            )
+            why = f"{msg.kind.name} from {msg.sender!r} on the connection of agent {member.name!r}"
+            self.reject(identity, why, Junk.IMPOSTOR)
             return
         member.seen = time.monotonic()
         self._on_message(member, msg)
 
-    def reject(self, identity: bytes, why: str) -> None:
-        """Drop a message from `identity` (counted and logged) for the reason `why`."""
+    def reject(self, identity: bytes, why: str, junk: Junk | None = None) -> None:
+        """Drop a message from `identity` (counted and logged) for the reason `why`.
+
+        `junk` says how it counts against the peer (None: not at all, as for a late ACT; it
+        is then logged at warning level every time).
+        """
         self.stats["messages_rejected"] += 1
         member = self._roster.members.get(identity)
-        peer = repr(member.name) if member is not None else f"peer {identity.hex()}"
-        self.log.warning("exchange: dropped message from %s: %s", peer, why)
+        peer = f"agent {member.name!r}" if member is not None else f"peer {identity.hex()[:64]}"
+        if junk is None:
+            self.log.warning("exchange: dropped message from %s: %s", peer, why)
+        elif self.ledger.charge(identity, peer, junk, why) and member is not None:
+            self._on_cut_off(member)
 
     def pump_hosts(self) -> bool:
         """Let local hosts handle what is waiting; True if any handled something."""
@@ -172,7 +203,19 @@ class Router:
     # -- sending ------------------------------------------------------------------------------
     def send(self, identity: bytes, raw: bytes, name: str) -> int:
         """Send one message to agent `name`; 0 on success, else the ZeroMQ errno (counted
-        and logged)."""
+        and logged). A message longer than `max_message_bytes` is not sent (EMSGSIZE): the
+        agent's socket would drop the connection rather than take it in."""
+        if len(raw) > self.max_message_bytes:
+            self.stats["send_failures"] += 1
+            self.log.error(
+                "exchange: not sent to agent %s: a message of %d bytes, over the bus's limit of"
+                " %d (raise the scenario's [bus] max_message_bytes, or spread the robots over"
+                " more agents)",
+                name,
+                len(raw),
+                self.max_message_bytes,
+            )
+            return errno.EMSGSIZE
         try:
             self.socket.send_multipart((identity, raw), _NOBLOCK)
         except zmq.ZMQError as exc:

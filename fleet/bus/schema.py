@@ -39,13 +39,15 @@ only once a frame has failed.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import functools
+import gc
 import re
 import reprlib
 import sys
 from collections import Counter
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass, fields
 from numbers import Real
 from types import NoneType, UnionType
@@ -69,6 +71,12 @@ from fleet.plugins import (
 
 __all__ = [
     "SCHEMA_VERSION",
+    "MAX_MESSAGE_BYTES",
+    "MAX_ROBOTS",
+    "MAX_ITEMS",
+    "MAX_BIDS",
+    "MAX_ID_CHARS",
+    "MAX_TEXT_CHARS",
     "MessageKind",
     "Message",
     "encode",
@@ -84,6 +92,24 @@ __all__ = [
 
 SCHEMA_VERSION = 4
 """The version this build writes and the only one it reads."""
+
+# Bounds on what one message may hold, so that no message costs more than a few tens of
+# milliseconds to read or to reject (docs/fleet.md, "Hostile input", has the measurements).
+MAX_MESSAGE_BYTES = 2 * 1024 * 1024
+"""Default largest frame (bytes) `decode` reads and the bus's sockets take in (ZeroMQ's
+``MAXMSGSIZE``); a scenario's ``[bus] max_message_bytes`` changes it. One agent hosting 80 MPC
+robots sends ACTs of about 8 kB and is sent OBSERVEs of about 44 kB."""
+MAX_ROBOTS = 10_000
+"""Most robots a HELLO or WELCOME names, and most observations or commands in one message."""
+MAX_ITEMS = 10_000
+"""Most items in any other array of a message (a plan's samples, an observation's neighbours,
+speed-cap pieces and blockers, announcements, handbacks), except bids."""
+MAX_BIDS = 100_000
+"""Most bids in one ACT (each robot of the agent may bid for each announced job)."""
+MAX_ID_CHARS = 1024
+"""Longest id (robot, job, sender), in characters."""
+MAX_TEXT_CHARS = 4096
+"""Longest free text (a BYE's or handback's reason, a rejection's, a scenario fingerprint)."""
 
 
 class MessageKind(enum.Enum):
@@ -152,17 +178,25 @@ _MAX = sys.float_info.max
 _Finite = Annotated[float, Meta(ge=-_MAX, le=_MAX)]
 _NonNegative = Annotated[float, Meta(ge=0.0, le=_MAX)]
 _Count = Annotated[int, Meta(ge=0)]
-_Name = Annotated[str, Meta(min_length=1)]
-_RobotId = Annotated[str, Meta(min_length=1, title="the robot id")]
-_JobId = Annotated[str, Meta(min_length=1, title="the job id")]
-_ListedId = Annotated[str, Meta(min_length=1, title="robot ids", description="non-empty strings")]
-_IDS = Meta(description="an array of robot ids", extra={"at": ""})
-_RobotIds = Annotated[list[_ListedId], _IDS]
+_Name = Annotated[str, Meta(min_length=1, max_length=MAX_ID_CHARS)]
+_RobotId = Annotated[str, Meta(min_length=1, max_length=MAX_ID_CHARS, title="the robot id")]
+_JobId = Annotated[str, Meta(min_length=1, max_length=MAX_ID_CHARS, title="the job id")]
+_Text = Annotated[str, Meta(max_length=MAX_TEXT_CHARS)]
+_ListedId = Annotated[
+    str,
+    Meta(min_length=1, max_length=MAX_ID_CHARS, title="robot ids", description="non-empty strings"),
+]
+_RobotIds = Annotated[
+    list[_ListedId],
+    Meta(description="an array of robot ids", max_length=MAX_ROBOTS, extra={"at": ""}),
+]
 
 _Sample = Annotated[
     tuple[_Finite, _Finite, _Finite], Meta(description="a [t, x, y] triple", extra={"at": ""})
 ]
-_Plan = Annotated[tuple[_Sample, ...], Meta(description="an array of [t, x, y]")]
+_Plan = Annotated[
+    tuple[_Sample, ...], Meta(description="an array of [t, x, y]", max_length=MAX_ITEMS)
+]
 _Goal = Annotated[tuple[_Finite, _Finite], Meta(description="[x, y]")]
 _CapPiece = Annotated[
     tuple[_Finite, _Finite, _Finite],
@@ -193,7 +227,7 @@ _Bid = Annotated[
     Meta(description="[job, robot, estimate_s]"),
 ]
 _Handback = Annotated[
-    tuple[_RobotId, _JobId, Annotated[str, Meta(title="the reason")]],
+    tuple[_RobotId, _JobId, Annotated[str, Meta(max_length=MAX_TEXT_CHARS, title="the reason")]],
     Meta(description="[robot, job, reason]"),
 ]
 _Solve = Annotated[
@@ -217,11 +251,14 @@ class _Observation(_Wire):
     goal: _Goal | None
     job: _Name | None
     speed_cap: _NonNegative | None
-    neighbours: tuple[_Neighbour, ...]
-    speed_caps: tuple[_CapPiece, ...]
+    neighbours: Annotated[tuple[_Neighbour, ...], Meta(max_length=MAX_ITEMS)]
+    speed_caps: Annotated[tuple[_CapPiece, ...], Meta(max_length=MAX_ITEMS)]
     print_end_s: _Finite | None
     priority: int
-    blockers: Annotated[tuple[_ListedId, ...], _IDS]
+    blockers: Annotated[
+        tuple[_ListedId, ...],
+        Meta(description="an array of robot ids", max_length=MAX_ITEMS, extra={"at": ""}),
+    ]
     queued: _Count
 
 
@@ -235,24 +272,24 @@ class _Command(_Wire):
 
 class _HelloBody(_Wire):
     robots: _RobotIds
-    scenario: str
+    scenario: _Text
 
 
 class _WelcomeBody(_Wire):
     accepted: _RobotIds
-    rejected: dict[_RobotId, str]
+    rejected: Annotated[dict[_RobotId, _Text], Meta(max_length=MAX_ROBOTS)]
 
 
 class _ObserveBody(_Wire):
     t: _Finite
-    observations: list[_Observation]
-    announcements: list[_Announcement]
+    observations: Annotated[list[_Observation], Meta(max_length=MAX_ROBOTS)]
+    announcements: Annotated[list[_Announcement], Meta(max_length=MAX_ITEMS)]
 
 
 class _ActBody(_Wire):
-    commands: dict[_RobotId, _Command]
-    bids: list[_Bid]
-    handbacks: list[_Handback]
+    commands: Annotated[dict[_RobotId, _Command], Meta(max_length=MAX_ROBOTS)]
+    bids: Annotated[list[_Bid], Meta(max_length=MAX_BIDS)]
+    handbacks: Annotated[list[_Handback], Meta(max_length=MAX_ITEMS)]
 
 
 class _HeartbeatBody(_Wire):
@@ -260,7 +297,7 @@ class _HeartbeatBody(_Wire):
 
 
 class _ByeBody(_Wire):
-    reason: str
+    reason: _Text
 
 
 class _Envelope(_Wire, tag_field="kind"):
@@ -315,7 +352,9 @@ _BODY_FIELDS = {
 }
 
 _DECODER = msgspec.json.Decoder(_Hello | _Welcome | _Observe | _Act | _Heartbeat | _Bye)
-# Only for frames that failed: out-of-range numbers become inf so they can be quoted.
+# Only for frames that failed, untyped, to find and quote the bad value; the float hook (out
+# of range numbers become inf) costs twice the time, so only frames that need it get it.
+_PLAIN_DECODER = msgspec.json.Decoder()
 _RAW_DECODER = msgspec.json.Decoder(float_hook=float)
 _ENCODER = msgspec.json.Encoder()
 
@@ -636,8 +675,16 @@ _SAMPLE_TYPES = frozenset((tuple, list))
 # --- decoding ------------------------------------------------------------------------------------
 
 
-def decode(raw: bytes, expect: Collection[MessageKind] | None = None) -> Message:
+def decode(
+    raw: bytes,
+    expect: Collection[MessageKind] | None = None,
+    *,
+    max_bytes: int = MAX_MESSAGE_BYTES,
+) -> Message:
     """Parse and validate one message.
+
+    Every check is linear in the frame's size, and the frame's size is bounded, so that no
+    message costs more than a stated time to read or reject (docs/fleet.md, "Hostile input").
 
     Parameters
     ----------
@@ -645,6 +692,8 @@ def decode(raw: bytes, expect: Collection[MessageKind] | None = None) -> Message
         The frame as received.
     expect:
         Kinds the caller is ready for; any other kind is rejected. None accepts every kind.
+    max_bytes:
+        Longest frame read; a longer one is rejected unread.
 
     Returns
     -------
@@ -654,16 +703,23 @@ def decode(raw: bytes, expect: Collection[MessageKind] | None = None) -> Message
     Raises
     ------
     MessageError
-        If the frame is not UTF-8 JSON, is of another schema version, of an unknown or
-        unexpected kind, or any field is missing, extra, of the wrong type or not finite. The
-        message says which field and quotes the bad value.
+        If the frame is longer than `max_bytes`, not UTF-8 JSON, of another schema version,
+        of an unknown or unexpected kind, nested deeper or holding more than the schema
+        allows, or any field is missing, extra, of the wrong type or not finite. The message
+        says which field and quotes the bad value.
     """
     if not isinstance(raw, bytes):
         raise _fail("bus message", raw, "must be bytes")
+    if len(raw) > max_bytes:
+        raise MessageError(
+            f"bus message of {len(raw):,} bytes: longer than the bus's limit of {max_bytes:,}"
+            " bytes (max_message_bytes); not read"
+        )
     try:
         envelope = _DECODER.decode(raw)
     except (msgspec.MsgspecError, UnicodeDecodeError) as exc:
-        raise _rejection(raw, exc) from None
+        with _collector_paused():
+            raise _rejection(raw, exc) from None
     kind = _KIND_OF[type(envelope)]
     if expect is not None and kind not in expect:
         allowed = ", ".join(sorted(k.name for k in expect)) or "nothing"
@@ -811,6 +867,24 @@ def _checked(value: Any, wire: Any, where: str, path: str) -> Any:
         raise _invalid(where, path, value, wire, exc) from None
 
 
+@contextlib.contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Pause Python's cyclic garbage collector (if on), for finding why a frame failed.
+
+    That reads the frame again untyped: a big one makes hundreds of thousands of lists and
+    dicts, each allocation a step towards a collection, which made rejecting a 2 MB frame
+    take twice as long. None of them can be part of a cycle, so nothing is missed.
+    """
+    if not gc.isenabled():
+        yield
+        return
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
+
+
 def _rejection(raw: bytes, error: Exception) -> MessageError:
     """Why the frame `raw` failed to decode (with `error`), said as a `MessageError`."""
     try:
@@ -818,7 +892,10 @@ def _rejection(raw: bytes, error: Exception) -> MessageError:
     except UnicodeDecodeError as exc:
         return _fail("bus message", raw, f"is not UTF-8 ({exc.reason} at byte {exc.start})")
     try:
-        obj = _RAW_DECODER.decode(raw)
+        try:
+            obj = _PLAIN_DECODER.decode(raw)
+        except msgspec.ValidationError:  # a number out of range: read again, as inf
+            obj = _RAW_DECODER.decode(raw)
     except msgspec.ValidationError:  # valid JSON msgspec cannot hold untyped (a huge integer)
         return _fail("bus message", raw, f"cannot be read ({error})")
     except msgspec.DecodeError as exc:
@@ -983,6 +1060,10 @@ def _rule(wire: Any, value: Any, named: bool) -> str:
     if _is_number(wire) and not _finite(value):
         return "must be a finite number"
     meta = get_args(wire)[1] if get_origin(wire) is Annotated else None
+    longest = meta.max_length if meta is not None else None
+    if longest is not None and isinstance(value, str | list | dict) and len(value) > longest:
+        unit = "characters" if isinstance(value, str) else "items"
+        return f"holds {len(value):,} {unit}: at most {longest:,} are allowed"
     title = meta.title if meta is not None and not named else None
     return f"{title} must be {_phrase(wire)}" if title else f"must be {_phrase(wire)}"
 

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import zmq
 
+from fleet.bus.schema import MAX_MESSAGE_BYTES
 from fleet.bus.security import ClientCurve, CurveGuard, ServerCurve
 from fleet.errors import MessageError
 
@@ -182,6 +183,7 @@ def bind_router(
     *,
     curve: ServerCurve | None = None,
     log: logging.Logger | None = None,
+    max_message_bytes: int = MAX_MESSAGE_BYTES,
 ) -> tuple[zmq.Socket, str]:
     """A ROUTER socket bound to `address`, and the address actually bound (port resolved).
 
@@ -202,6 +204,10 @@ def bind_router(
         is closed. Only for ipc and tcp.
     log:
         Where the guard logs refusals; default ``fleet.bus``.
+    max_message_bytes:
+        ZeroMQ's ``MAXMSGSIZE``: a peer sending a longer message over ipc or tcp is
+        disconnected before the message is read into memory (inproc has no such check;
+        `fleet.bus.schema.decode` checks the size again).
 
     Raises
     ------
@@ -219,6 +225,7 @@ def bind_router(
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
     sock.setsockopt(zmq.ROUTER_HANDOVER, 1)
+    sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)
     if parsed.ipv6:
         # Without it libzmq resolves only IPv4 and binding '[::1]' fails with "No such device".
         sock.setsockopt(zmq.IPV6, 1)
@@ -253,6 +260,7 @@ def connect_dealer(
     routing_id: bytes | None = None,
     *,
     curve: ClientCurve | None = None,
+    max_message_bytes: int = MAX_MESSAGE_BYTES,
 ) -> zmq.Socket:
     """A DEALER socket connected to `address` (connecting succeeds before the peer is up).
 
@@ -270,6 +278,8 @@ def connect_dealer(
         The agent's CURVE keys, for a ROUTER bound with a `ServerCurve`; only for ipc and tcp.
         If the engine refuses them nothing is delivered and the socket stays silent (the
         engine logs the refusal), as with any peer that never answers.
+    max_message_bytes:
+        ZeroMQ's ``MAXMSGSIZE``, as for `bind_router`.
 
     Raises
     ------
@@ -290,6 +300,7 @@ def connect_dealer(
         )
     sock = context.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
+    sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)
     if routing_id is not None:
         sock.setsockopt(zmq.ROUTING_ID, routing_id)
     if parsed.ipv6:

@@ -120,7 +120,8 @@ def build_controllers(
 
 
 def scenario_fingerprint(scenario: Scenario) -> str:
-    """A short hash of what agents and engine must agree on: robots, controller, floor.
+    """A short hash of what agents and engine must agree on: robots, controller, floor, and
+    the bus's message size limit.
 
     The map's contents (not its path) count, so an agent on another machine with its own copy
     of the files agrees as long as the files are the same.
@@ -130,6 +131,7 @@ def scenario_fingerprint(scenario: Scenario) -> str:
         "controller": [scenario.controller.name, scenario.controller.options],
         "map": _file_digest(Path(scenario.map)),
         "rough_v_max": scenario.rough_v_max,
+        "max_message_bytes": scenario.bus.max_message_bytes,
     }
     text = json.dumps(body, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -196,7 +198,11 @@ def serve_agent(
     until nothing has come from it for `idle_timeout_s` (None: wait for ever)."""
     floor = load_run_floor(scenario)
     controllers = build_controllers(scenario, floor, robots)
-    kwargs: dict[str, Any] = {"name": name, "scenario": scenario_fingerprint(scenario)}
+    kwargs: dict[str, Any] = {
+        "name": name,
+        "scenario": scenario_fingerprint(scenario),
+        "max_message_bytes": scenario.bus.max_message_bytes,
+    }
     if curve is not None:
         kwargs["curve"] = curve
     with AgentHost(address, controllers, **kwargs) as host:

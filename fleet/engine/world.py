@@ -162,6 +162,7 @@ class World:
             address,
             timeout_s=bus.timeout_s,
             lost_after_s=bus.lost_after_s,
+            max_message_bytes=bus.max_message_bytes,
             scenario=fingerprint,
             **({"curve": curve} if curve is not None else {}),
         )
@@ -181,7 +182,11 @@ class World:
                     scenario, self.floor, list(self.robots), self.planner_for
                 )
                 self.host = AgentHost(
-                    self.exchange.address, controllers, name="local", scenario=fingerprint
+                    self.exchange.address,
+                    controllers,
+                    name="local",
+                    scenario=fingerprint,
+                    max_message_bytes=bus.max_message_bytes,
                 )
                 self.exchange.add_local(self.host)
             self._wait_for_agents(agent_wait_s)

@@ -130,6 +130,8 @@ class BusConfig:
     timeout_s: float = 10.0
     #: An agent silent this long (s; no answer, no heartbeat) while a round waits is lost.
     lost_after_s: float = 3.0
+    #: Longest message (bytes) the bus takes in or sends (`fleet.bus.schema.MAX_MESSAGE_BYTES`).
+    max_message_bytes: int = 2 * 1024 * 1024
 
 
 @dataclass(frozen=True)
@@ -337,7 +339,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         dispatcher=PluginChoice(file.dispatcher.name, file.dispatcher.options),
         jobs=jobs,
         bus_address=bus.address,
-        bus=BusConfig(bus.timeout_s, bus.lost_after_s),
+        bus=BusConfig(bus.timeout_s, bus.lost_after_s, bus.max_message_bytes),
         deadlock_after_s=sc.deadlock_after_s or None,
         arrival_tolerance_m=sc.arrival_tolerance_m,
         sensing_radius_m=sc.sensing_radius_m,

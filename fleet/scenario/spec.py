@@ -274,6 +274,15 @@ class BusTable(_Table, kw_only=True):
         Positive,
         Meta(description="An agent silent this long while a round waits is lost (s)."),
     ] = 3.0
+    max_message_bytes: Annotated[
+        int,
+        Meta(
+            ge=1024,
+            le=1 << 30,
+            description="Longest bus message taken in or sent (bytes); a peer sending a"
+            " longer one is disconnected. Raise it for agents hosting thousands of robots.",
+        ),
+    ] = 2 * 1024 * 1024
 
 
 class ScenarioFile(_Table, kw_only=True):
