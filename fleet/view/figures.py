@@ -722,10 +722,12 @@ def speed_figure(
     *,
     robots: int = 6,
     title: str | None = None,
+    t_end: float | None = None,
 ) -> Figure:
     """The paper's velocity figure: vx, vy and the limit in force against time, per robot.
 
-    One panel per robot (the first `robots` in id order), on a shared time axis. Velocities are
+    One panel per robot (the first `robots` in id order), on a shared time axis from 0 to
+    `t_end` (default: the last sample), so the axis ends where the run ended. Velocities are
     drawn as steps (``v[k]`` held over ``[t[k], t[k+1])``); the limit of `step_limits` as a
     ``+/-`` step line; the robot's print tasks are shaded by kind.
 
@@ -765,6 +767,11 @@ def speed_figure(
         ax.set_title(rid, loc="left", fontsize=9)
         ax.set_ylabel("v (m/s)")
     axes[-1].set_xlabel("t (s)")
+    if t_end is None:
+        t_end = max((float(tracks[r].t[-1]) for r in shown if len(tracks[r].t)), default=0.0)
+    # Without limits matplotlib pads the axis, and a print cap that outlasts the run (its task
+    # was cut off by the end) would stretch it further.
+    axes[-1].set_xlim(0.0, max(t_end, 1e-9))
     handles: list[Any] = [
         Line2D([], [], color="#1f77b4", lw=1.0, label="vx"),
         Line2D([], [], color="#ff7f0e", lw=1.0, label="vy"),
@@ -976,7 +983,7 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
     out = [run.run_dir / TRAJECTORY_PNG, run.run_dir / SPEED_PNG, run.run_dir / GANTT_PNG]
     figures = [
         trajectory_figure(run.floor, run.tracks, robots=robots, title=run.title),
-        speed_figure(run.tracks, run.caps, robots=robots, title=run.title),
+        speed_figure(run.tracks, run.caps, robots=robots, title=run.title, t_end=run.t_end),
         gantt_figure(
             run.tasks,
             run.events,
