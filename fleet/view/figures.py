@@ -417,7 +417,7 @@ def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
     if summary_path.is_file():
         try:
             summary = json.loads(summary_path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(str(summary_path), "(file)", str(exc), "must be valid JSON") from exc
         if not isinstance(summary, dict):
             raise InputError(str(summary_path), "(file)", summary, "must be a JSON object")
@@ -459,19 +459,24 @@ def read_csv_rows(path: Path, columns: Sequence[str]) -> list[tuple[int, dict[st
             f"a run directory written by `fleet run` has {path.name} with columns "
             + ",".join(columns),
         )
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        header = reader.fieldnames or []
-        missing = [c for c in columns if c not in header]
-        if missing:
-            raise InputError(
-                str(path),
-                "header",
-                ",".join(header),
-                f"lacks {', '.join(missing)}; needs columns {','.join(columns)}",
-            )
-        # Line numbers as an editor shows them: the header is line 1.
-        return [(reader.line_num, row) for row in reader]
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise InputError(
+                    str(path),
+                    "header",
+                    ",".join(header),
+                    f"lacks {', '.join(missing)}; needs columns {','.join(columns)}",
+                )
+            # Line numbers as an editor shows them: the header is line 1.
+            return [(reader.line_num, row) for row in reader]
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(
+            str(path), "(file)", str(exc), f"must be the CSV text `fleet run` writes as {path.name}"
+        ) from None
 
 
 def csv_number(
