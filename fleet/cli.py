@@ -376,7 +376,8 @@ def _output_arguments(p: argparse.ArgumentParser) -> None:
         "--force",
         action="store_true",
         help="write into an --out that holds an earlier run, clearing that run's files first "
-        "(without it such a directory is refused, so no stale file survives)",
+        "(without it such a directory is refused, so no stale file survives; the default "
+        "runs/<scenario>-seed<seed> is always replaced)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar or table")
     p.add_argument(
@@ -608,8 +609,10 @@ def _simulate(
     args: argparse.Namespace, console: Console, errors: Console, scenario, make_world
 ) -> int:
     """Build the World, run it with a progress bar, write the run directory, show key figures."""
+    # The default folder is the run's own, by name and seed: running again replaces that run.
+    # A folder the user names is refused when it holds a run, unless --force.
     out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
-    _fresh_run_dir(out, args.force)
+    _fresh_run_dir(out, args.force or args.out is None)
     talk = errors if args.json else console  # --json keeps stdout for the JSON
     world = make_world()
     if not args.quiet:

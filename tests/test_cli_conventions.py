@@ -152,6 +152,16 @@ def test_a_used_run_directory_is_refused_unless_forced(tmp_path, capsys):
     assert json.loads((out / "summary.json").read_text())["seed"] == 2
 
 
+def test_the_default_run_directory_is_replaced_by_the_next_run(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", *SMALL[:-1], "--quiet"]) == EXIT_OK
+    out = tmp_path / "runs" / "throughput-seed1"
+    assert (out / "speed.png").is_file()
+    assert main(["run", *SMALL, "--quiet", "--duration", "60"]) == EXIT_OK
+    assert not (out / "speed.png").exists()
+    assert json.loads((out / "summary.json").read_text())["sim_time_s"] == 60.0
+
+
 def test_force_never_empties_a_folder_that_is_not_a_run(tmp_path, capsys):
     (tmp_path / "notes.txt").write_text("mine")
     argv = ["run", *SMALL, "--out", str(tmp_path), "--quiet", "--force"]
