@@ -171,6 +171,23 @@ def test_force_never_empties_a_folder_that_is_not_a_run(tmp_path, capsys):
 
 
 # -- Ctrl-C ----------------------------------------------------------------------------------------
+def test_a_world_asked_to_stop_ends_between_steps_and_says_so():
+    from fleet.engine import World
+    from fleet.scenario import load_scenario
+
+    scenario = load_scenario(THROUGHPUT).override(robots=2, duration=120)
+    whole = World(scenario).run()
+    # Asking (and never stopping) leaves the run as it was: the same samples, the same digest.
+    asked = World(scenario).run(stop=lambda: False)
+    assert asked.summary["digest"] == whole.summary["digest"]
+    assert whole.summary["complete"] is True and asked.summary["complete"] is True
+
+    world = World(scenario)
+    stopped = world.run(stop=lambda: world.env.now >= 30.0).summary
+    assert stopped["complete"] is False and stopped["sim_time_s"] == 30.0
+    assert max(world.recorder.trajectories["r01"].t) <= 30.0
+
+
 def test_ctrl_c_stops_a_run_and_saves_it_marked_incomplete(tmp_path):
     out = tmp_path / "run"
     proc = subprocess.Popen(

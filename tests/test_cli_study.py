@@ -50,10 +50,10 @@ def write_study(
 
 
 def unwrap(text: str) -> str:
-    """Printed text with rich's line breaks removed.
+    """Printed text as one line.
 
-    Off a terminal rich wraps at 80 columns, keeping the space before each break and splitting
-    words longer than a line, so joining the lines gives back what was printed.
+    Off a terminal the CLI no longer wraps (tests/test_cli_conventions.py checks that); joining
+    the lines lets these tests read several printed lines as one sentence.
     """
     return "".join(text.splitlines())
 

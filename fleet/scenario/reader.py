@@ -305,7 +305,7 @@ def load_scenario(
         raise ScenarioError(src, "(file)", src, "no such scenario file") from None
     except IsADirectoryError:
         raise ScenarioError(
-            src, "(file)", src, "is a directory; give a scenario file (TOML)"
+            src, "(file)", src, "cannot read the scenario file: it is a directory"
         ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ScenarioError(src, "(file)", src, f"cannot read the scenario file: {exc}") from None
