@@ -1,51 +1,162 @@
-"""The `fleet` command line: run scenarios and studies, draw and replay runs, list plugins,
-inspect floor maps and G-code files."""
+"""The `fleet` command line: run scenarios and studies, draw and replay runs, list and start
+plugins, make keys, inspect floor maps and G-code files.
+
+Exit status, the same for every command (`fleet --help` says it too):
+
+- 0: done;
+- 1: bad input (a file, a field or an option value; the message names it and the value) or a
+  failed run (a sweep with failed cells, broken job accounting, an agent refused);
+- 2: usage (an unknown command or option, a missing argument, a value of the wrong form);
+- 130: interrupted (Ctrl-C); `fleet run` and `fleet sweep` first save what they have, marked
+  incomplete.
+
+Errors are one paragraph on stderr naming the file, field or option and the bad value; a
+traceback only with ``--debug``. Off a terminal (a pipe, a file, CI) the output is plain: no
+colour, no progress bar, no wrapping.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import math
+import os
+import re
+import signal
 import sys
+import time
+import tomllib
+import traceback
 import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
-from fleet.errors import FleetError
+from fleet import __version__
+from fleet.errors import FleetError, InputError
 
-__all__ = ["main"]
+__all__ = ["main", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERRUPTED"]
+
+#: Exit status: done.
+EXIT_OK = 0
+#: Exit status: bad input, or a run that failed.
+EXIT_FAILED = 1
+#: Exit status: the command line itself is wrong (argparse's usage errors).
+EXIT_USAGE = 2
+#: Exit status: interrupted by Ctrl-C (128 + SIGINT, as shells report it).
+EXIT_INTERRUPTED = 130
+
+_EXIT_CODES = """exit status: 0 done; 1 bad input or a failed run; 2 usage (unknown option,
+missing argument); 130 interrupted (Ctrl-C; run and sweep save what they have, marked
+incomplete). --debug shows the traceback of an error."""
+
+# Off a terminal rich would wrap at 80 columns; lines this long are never wrapped.
+_PLAIN_WIDTH = 4096
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `fleet` console script; returns the exit status."""
     parser = _parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) and usage errors (2)
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if args.command == "serve":
         # The engine's operator sees agents join and leave, not only refusals and losses.
         logging.getLogger("fleet.bus").setLevel(logging.INFO)
-    console = Console(stderr=False)
+    errors = _console(stderr=True)
     try:
-        return args.handler(args, console)
+        return args.handler(args, _console(stderr=False), errors)
+    except KeyboardInterrupt:
+        _debug_traceback(args)
+        errors.print("interrupted", highlight=False)
+        return EXIT_INTERRUPTED
     except FleetError as exc:
-        # Escape: messages quote TOML like "[floor]" that rich would take for markup.
-        Console(stderr=True).print(
-            f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True
+        _debug_traceback(args)
+        _error(errors, str(exc))
+        return EXIT_FAILED
+    except OSError as exc:  # a disk full, a folder not writable: the user's to fix, not ours
+        _debug_traceback(args)
+        where = f"{exc.filename}: " if exc.filename else ""
+        _error(errors, f"{where}{exc.strerror or exc}")
+        return EXIT_FAILED
+    except Exception as exc:
+        if args.debug:
+            raise
+        _error(
+            errors,
+            f"unexpected {type(exc).__name__}: {exc}. This is a bug in mambot-fleet: run the "
+            "command again with --debug for the traceback, and report it with the command",
         )
-        return 2
+        return EXIT_FAILED
+
+
+def _debug_traceback(args: argparse.Namespace) -> None:
+    if args.debug:
+        traceback.print_exc()
+
+
+def _error(errors: Console, message: str) -> None:
+    # Escape: messages quote TOML like "[floor]" that rich would take for markup.
+    errors.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def _warn(errors: Console, message: str) -> None:
+    errors.print(f"[yellow]warning:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def _console(*, stderr: bool) -> Console:
+    """A console for stdout or stderr: rich on a terminal, plain text anywhere else."""
+    stream = sys.stderr if stderr else sys.stdout
+    if stream.isatty():
+        return Console(stderr=stderr)
+    return Console(
+        stderr=stderr,
+        width=_PLAIN_WIDTH,
+        no_color=True,
+        highlight=False,
+        emoji=False,
+        soft_wrap=True,
+    )
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="fleet", description="Simulate fleets of MAMbots on a shop floor."
+        prog="fleet",
+        description="Simulate fleets of MAMbots on a shop floor.",
+        epilog=_EXIT_CODES,
     )
-    sub = p.add_subparsers(dest="command", required=True)
+    p.add_argument("--version", action="version", version=f"mambot-fleet {__version__}")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an error")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    run = sub.add_parser("run", help="run a scenario and write its run directory")
+    def command(name: str, help: str, handler: Callable[..., int]) -> argparse.ArgumentParser:
+        cmd = sub.add_parser(name, help=help, description=help, epilog=_EXIT_CODES)
+        # SUPPRESS: a subcommand's default would overwrite `fleet --debug CMD`'s.
+        cmd.add_argument(
+            "--debug",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="show the traceback of an error",
+        )
+        cmd.set_defaults(handler=handler)
+        return cmd
+
+    run = command("run", "run a scenario and write its run directory", _cmd_run)
     _scenario_arguments(run)
     _output_arguments(run)
     run.add_argument(
@@ -55,16 +166,20 @@ def _parser() -> argparse.ArgumentParser:
         help="worker processes hosting the robots' agents (0: all in this process); they talk "
         "to the engine over the scenario's [bus] address, or a private ipc:// socket",
     )
-    run.set_defaults(handler=_cmd_run)
+    _json_argument(run, "the run's summary.json object and its run directory")
 
-    serve = sub.add_parser(
+    serve = command(
         "serve",
-        help="run a scenario whose robot agents join from elsewhere (`fleet agent --connect`)",
+        "run a scenario whose robot agents join from elsewhere (`fleet agent --connect`)",
+        _cmd_serve,
     )
     _scenario_arguments(serve)
     _output_arguments(serve)
     serve.add_argument(
-        "--bind", required=True, help="where agents connect, e.g. tcp://*:5555 or ipc:///tmp/f"
+        "--bind",
+        required=True,
+        type=_address("tcp://*:5555 or ipc:///tmp/fleet"),
+        help="where agents connect, e.g. tcp://*:5555 or ipc:///tmp/f",
     )
     serve.add_argument(
         "--key", type=Path, help="the engine's secret key file (`fleet keys`): turns on CURVE"
@@ -78,14 +193,21 @@ def _parser() -> argparse.ArgumentParser:
         default=300.0,
         help="seconds to wait for agents (default 300)",
     )
-    serve.set_defaults(handler=_cmd_serve)
 
-    agent = sub.add_parser("agent", help="host robot agents for a run started by `fleet serve`")
+    agent = command("agent", "host robot agents for a run started by `fleet serve`", _cmd_agent)
     agent.add_argument("scenario", nargs="?", help="the run's scenario TOML (same as the engine's)")
     agent.add_argument("--map", help="floor map TOML, as given to the engine")
-    agent.add_argument("--robots", type=int, help="number of robots, as given to the engine")
+    agent.add_argument(
+        "--robots", type=_positive_int, help="number of robots, as given to the engine"
+    )
     agent.add_argument("--controller", help="controller plugin name, as given to the engine")
-    agent.add_argument("--connect", required=True, help="the engine's address, tcp://HOST:PORT")
+    _set_argument(agent, "as given to the engine")
+    agent.add_argument(
+        "--connect",
+        required=True,
+        type=_address("tcp://HOST:5555 or ipc:///tmp/fleet"),
+        help="the engine's address, tcp://HOST:PORT",
+    )
     agent.add_argument("--only", help="host these robots, e.g. r01,r02 (default: all)")
     agent.add_argument("--share", help="host the K-th of N even shares of the robots, e.g. 1/2")
     agent.add_argument("--name", help="agent name (default agent-<pid>-1)")
@@ -97,23 +219,42 @@ def _parser() -> argparse.ArgumentParser:
         default=300.0,
         help="give up after this many seconds without a word from the engine (default 300)",
     )
-    agent.set_defaults(handler=_cmd_agent)
 
-    keys = sub.add_parser("keys", help="make a CURVE key pair for `fleet serve` / `fleet agent`")
-    keys.add_argument("directory", type=Path, help="where to write NAME.key and NAME.key_secret")
+    keys = command(
+        "keys",
+        "make a CURVE key pair for `fleet serve` / `fleet agent`, by default in your user "
+        "configuration folder, never in a git work tree unless forced",
+        _cmd_keys,
+    )
+    keys.add_argument(
+        "directory",
+        type=Path,
+        nargs="?",
+        help=f"where to write NAME.key and NAME.key_secret (default: {_display(_key_home())}; "
+        "the folder is made owner-only, 0700, the secret file 0600)",
+    )
     keys.add_argument("--name", default="fleet", help="file name stem (default: fleet)")
-    keys.set_defaults(handler=_cmd_keys)
+    keys.add_argument(
+        "--force",
+        action="store_true",
+        help="write into DIRECTORY even inside a git work tree (keep the secret out of commits)",
+    )
 
-    sweep = sub.add_parser(
-        "sweep", help="run a study: a grid of scenario values over seeds, cells in parallel"
+    sweep = command(
+        "sweep", "run a study: a grid of scenario values over seeds, cells in parallel", _cmd_sweep
     )
     sweep.add_argument("study", type=Path, help="study TOML (see studies/throughput.toml)")
     sweep.add_argument(
         "--out", type=Path, help="study directory (default: runs/<study name>); resumes there"
     )
     sweep.add_argument(
-        "--workers", type=_positive_int, help="local worker processes (default: one per CPU core)"
+        "-j",
+        "--jobs",
+        type=_positive_int,
+        help="cells run at once, each in a local process (default: one per CPU core)",
     )
+    # --workers means agent processes on `fleet run`; here it was the cells run at once.
+    sweep.add_argument("--workers", dest="old_workers", type=_positive_int, help=argparse.SUPPRESS)
     sweep.add_argument(
         "--scheduler",
         metavar="tcp://HOST:PORT",
@@ -126,73 +267,87 @@ def _parser() -> argparse.ArgumentParser:
         help="do not run failed cells again when resuming",
     )
     sweep.add_argument("--quiet", action="store_true", help="no progress bar or table")
-    sweep.set_defaults(handler=_cmd_sweep)
+    _json_argument(sweep, "the sweep's counts, where its results are, and every cell's record")
 
-    report = sub.add_parser(
-        "report", help="plot a study's results and write a Markdown summary (report.md)"
+    report = command(
+        "report", "plot a study's results and write a Markdown summary (report.md)", _cmd_report
     )
     report.add_argument("study_dir", type=Path, help="a directory written by `fleet sweep`")
     report.add_argument("--out", type=Path, help="where to write (default: the study directory)")
-    report.set_defaults(handler=_cmd_report)
+    _json_argument(report, "the files written and the table of good parts per hour")
 
-    plot = sub.add_parser(
-        "plot", help="draw a run's figures: trajectories, speed against limits, print Gantt"
+    plot = command(
+        "plot",
+        "draw a run's figures: trajectories, speed against limits, print Gantt",
+        _cmd_plot,
     )
     plot.add_argument("run_dir", type=Path, help="a run directory written by `fleet run`")
-    plot.set_defaults(handler=_cmd_plot)
 
-    replay = sub.add_parser("replay", help="write a self-contained HTML page that animates a run")
+    replay = command("replay", "write a self-contained HTML page that animates a run", _cmd_replay)
     replay.add_argument("run_dir", type=Path, help="a run directory written by `fleet run`")
     replay.add_argument(
         "--out", type=Path, help="HTML file or directory (default: RUN_DIR/replay.html)"
     )
-    replay.set_defaults(handler=_cmd_replay)
 
-    plugins = sub.add_parser("plugins", help="list the controller and dispatcher plugins found")
-    plugins.set_defaults(handler=_cmd_plugins)
+    command("plugins", "list the controller and dispatcher plugins found", _cmd_plugins)
 
-    floor = sub.add_parser("map", help="compile a floor map and describe its regions")
-    floor.add_argument("file", type=Path)
-    floor.set_defaults(handler=_cmd_map)
+    from fleet.plugins.scaffold import KINDS
 
-    gcode = sub.add_parser("gcode", help="time a G-code file and split it into print tasks")
+    new_plugin = command(
+        "new-plugin",
+        "write a plugin package that installs, is found by `fleet plugins` and passes the "
+        "conformance kit as written (docs/tutorial.md)",
+        _cmd_new_plugin,
+    )
+    new_plugin.add_argument("name", help="the plugin's name, e.g. slow_follower")
+    new_plugin.add_argument("--kind", required=True, choices=tuple(KINDS), help="plugin kind")
+    new_plugin.add_argument(
+        "--out", type=Path, default=Path("."), help="folder to write NAME/ into (default: .)"
+    )
+
+    floor = command("map", "compile a floor map and describe its regions", _cmd_map)
+    floor.add_argument("file", type=Path, help="a floor map TOML (maps/README.md)")
+
+    gcode = command("gcode", "time a G-code file and split it into print tasks", _cmd_gcode)
     gcode.add_argument("file", type=Path, help="G-code from PrusaSlicer, SuperSlicer or Cura")
     gcode.add_argument("--json", action="store_true", help="print the analysis as JSON")
     gcode.add_argument(
         "--min-task",
-        type=float,
+        type=_non_negative_float,
         default=10.0,
         metavar="S",
         help="minimum task duration in seconds; shorter segments merge (default 10)",
     )
     gcode.add_argument(
-        "--map",
+        "--classify",
         action="append",
         default=[],
         metavar="NAME=KIND",
         help="classify slicer feature NAME as KIND (contour, infill, support, travel, other); "
-        "repeatable, e.g. --map 'Gap fill=contour'",
+        "repeatable, e.g. --classify 'Gap fill=contour' (as [print] classify in a scenario)",
     )
-    gcode.set_defaults(handler=_cmd_gcode)
+    # --map names a floor map everywhere else; here it was --classify.
+    gcode.add_argument("--map", dest="old_map", action="append", default=[], help=argparse.SUPPRESS)
 
-    schema = sub.add_parser(
+    schema = command(
         "schema",
-        help="print the JSON Schema of scenario or map files, for editors (docs/schema.md)",
+        "print the JSON Schema of scenario or map files, for editors (docs/schema.md)",
+        _cmd_schema,
     )
     schema.add_argument("kind", choices=("scenario", "map"), help="which files the schema is of")
     schema.add_argument("--out", type=Path, help="write the schema to this file instead")
-    schema.set_defaults(handler=_cmd_schema)
     return p
 
 
 def _scenario_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", nargs="?", help="scenario TOML (default: scenarios/default.toml)")
     p.add_argument("--map", help="floor map TOML, overriding the scenario's")
-    p.add_argument("--robots", type=int, help="number of robots")
+    p.add_argument("--robots", type=_positive_int, help="number of robots")
     p.add_argument("--controller", help="controller plugin name (see `fleet plugins`)")
     p.add_argument("--dispatcher", help="dispatcher plugin name (see `fleet plugins`)")
-    p.add_argument("--duration", type=float, help="simulated seconds")
-    p.add_argument("--seed", type=int, help="random seed")
+    p.add_argument("--duration", type=_positive_float, help="simulated seconds")
+    p.add_argument("--seed", type=_non_negative_int, help="random seed")
+    _set_argument(p, "checked as the file's own values are")
     p.add_argument(
         "--latency",
         metavar="none|measured|SECONDS",
@@ -204,8 +359,29 @@ def _scenario_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _set_argument(p: argparse.ArgumentParser, how: str) -> None:
+    p.add_argument(
+        "--set",
+        dest="settings",
+        action="append",
+        default=[],
+        type=_setting,
+        metavar="KEY=VALUE",
+        help="set one scenario value by its dotted key, e.g. --set robots.count=8 or --set "
+        "controller.options.horizon=20; repeatable; VALUE is read as TOML (8, 0.5, true, "
+        f'"text"; a bare word is text), {how}; file names are relative to the current folder',
+    )
+
+
 def _output_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, help="run directory (default: runs/<scenario>-seed<seed>)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write into an --out that holds an earlier run, clearing that run's files first "
+        "(without it such a directory is refused, so no stale file survives; the default "
+        "runs/<scenario>-seed<seed> is always replaced)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar or table")
     p.add_argument(
         "--no-figures",
@@ -216,10 +392,19 @@ def _output_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _scenario(args: argparse.Namespace):
-    from fleet.scenario import default_scenario, load_scenario
+def _json_argument(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help=f"print {what} as JSON on stdout, and nothing else there (messages go to stderr)",
+    )
 
-    scenario = load_scenario(args.scenario) if args.scenario else default_scenario()
+
+def _scenario(args: argparse.Namespace):
+    from fleet.scenario import REPO_ROOT, load_scenario
+
+    path = Path(args.scenario) if args.scenario else REPO_ROOT / "scenarios" / "default.toml"
+    scenario = load_scenario(path, dict(args.settings))
     return scenario.override(
         map=args.map,
         robots=args.robots,
@@ -231,19 +416,20 @@ def _scenario(args: argparse.Namespace):
     )
 
 
-def _cmd_run(args: argparse.Namespace, console: Console) -> int:
+def _cmd_run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.engine import World
 
     scenario = _scenario(args)
-    return _simulate(args, console, scenario, lambda: World(scenario, workers=args.workers))
+    return _simulate(args, console, errors, scenario, lambda: World(scenario, workers=args.workers))
 
 
-def _cmd_serve(args: argparse.Namespace, console: Console) -> int:
+def _cmd_serve(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from dataclasses import replace
 
     from fleet.bus.security import ServerCurve
     from fleet.engine import World
 
+    args.json = False
     scenario = replace(_scenario(args), bus_address=args.bind)
     curve = None
     if args.key is not None or args.authorized is not None:
@@ -255,12 +441,13 @@ def _cmd_serve(args: argparse.Namespace, console: Console) -> int:
     return _simulate(
         args,
         console,
+        errors,
         scenario,
         lambda: World(scenario, remote=True, curve=curve, agent_wait_s=args.wait),
     )
 
 
-def _cmd_agent(args: argparse.Namespace, console: Console) -> int:
+def _cmd_agent(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.bus.security import ClientCurve
     from fleet.engine.agents import parse_robot_selection, serve_agent
 
@@ -275,89 +462,257 @@ def _cmd_agent(args: argparse.Namespace, console: Console) -> int:
     report = serve_agent(
         scenario, args.connect, robots, name=args.name, curve=curve, idle_timeout_s=args.wait
     )
-    errors = Console(stderr=True)
     if report.accepted is None:
-        errors.print(
-            f"[bold red]error:[/] no answer from an engine at {escape(args.connect)} within "
-            f"{args.wait:g} s (not running, or it refused this agent's key)"
+        _error(
+            errors,
+            f"no answer from an engine at {args.connect} within {args.wait:g} s (not running, "
+            "or it refused this agent's key)",
         )
-        return 1
+        return EXIT_FAILED
     if report.rejected:
         reasons = "; ".join(f"{r}: {why}" for r, why in sorted(report.rejected.items()))
-        errors.print(f"[bold red]error:[/] the engine refused robots: {escape(reasons)}")
+        _error(errors, f"the engine refused robots: {reasons}")
         if not report.accepted:
-            return 1
+            return EXIT_FAILED
     stats = report.stats
     console.print(
         f"{'run finished' if report.finished else 'engine went silent'}: answered "
         f"{stats['observations']} observations ({stats['controller_errors']} controller errors)"
     )
-    return 0 if report.finished and not report.rejected else 1
+    return EXIT_OK if report.finished and not report.rejected else EXIT_FAILED
 
 
-def _cmd_keys(args: argparse.Namespace, console: Console) -> int:
+# -- keys -------------------------------------------------------------------------------------
+def _key_home() -> Path:
+    """Where `fleet keys` writes by default: the user's configuration folder, never a project."""
+    base = os.environ.get("XDG_CONFIG_HOME") or ""
+    root = Path(base) if Path(base).is_absolute() else Path.home() / ".config"
+    return root / "mambot-fleet" / "keys"
+
+
+def _display(path: Path) -> str:
+    """`path` with the home folder written ~, as a user would type it."""
+    try:
+        return "~/" + path.relative_to(Path.home()).as_posix()
+    except ValueError:
+        return str(path)
+
+
+def _work_tree(path: Path) -> Path | None:
+    """The git work tree `path` (which need not exist yet) lies in, or None."""
+    for folder in (path.resolve(), *path.resolve().parents):
+        if (folder / ".git").exists():
+            return folder
+    return None
+
+
+def _cmd_keys(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.bus.security import make_keypair
 
-    public, secret = make_keypair(args.directory, args.name)
-    console.print(f"public key: {public}\nsecret key: {secret} (keep it private)")
-    return 0
-
-
-def _simulate(args: argparse.Namespace, console: Console, scenario, make_world) -> int:
-    """Build the World, run it with a progress bar, write the run directory, show key figures."""
-    out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
-    world = make_world()
-    if args.quiet:
-        result = world.run()
-    else:
-        console.print(
-            f"[bold]{scenario.name}[/]: {len(world.robots)} robots on {world.floor.name} "
-            f"({len(world.floor.regions)} regions), {scenario.controller.name} + "
-            f"{scenario.dispatcher.name}, {scenario.duration_s:g} s simulated, seed {scenario.seed}"
+    default = args.directory is None
+    directory = _key_home() if default else args.directory
+    tree = _work_tree(directory)
+    if tree is not None and not args.force:
+        raise InputError(
+            "command line",
+            "DIRECTORY",
+            str(directory),
+            f"lies in the git work tree {tree}, where a secret key is one `git add` away from "
+            f"being published; leave DIRECTORY out to use {_display(_key_home())}, choose a "
+            "folder outside the work tree, or give --force (and keep the key out of commits)",
         )
-        with Progress(
-            TextColumn("simulating"),
-            BarColumn(),
-            TextColumn("{task.fields[now]:>8.0f} s"),
-            TimeElapsedColumn(),
-            console=console,
-            transient=True,
-        ) as bar:
-            task = bar.add_task("run", total=scenario.duration_s, now=0.0)
-            result = world.run(lambda now: bar.update(task, completed=now, now=now))
+    public, secret = make_keypair(directory, args.name)
+    mode = directory.stat().st_mode & 0o777
+    if mode & 0o077:
+        if default:
+            directory.chmod(0o700)  # ours: owner-only, whatever the umask made of it
+        else:
+            _warn(
+                errors,
+                f"{directory} is readable by others (mode {mode:04o}); the secret file itself is "
+                f"0600, but `chmod 700 {directory}` keeps even its name private",
+            )
+    console.print(
+        f"public key: {public} (give it to the other side)\n"
+        f"secret key: {secret} (mode 0600; never copy it off this machine)",
+        highlight=False,
+    )
+    return EXIT_OK
+
+
+# -- running a scenario -----------------------------------------------------------------------
+def _fresh_run_dir(out: Path, force: bool) -> None:
+    """Make sure `out` holds nothing from an earlier run: refuse it, or with `force` clear the
+    run files in it (and nothing else: a folder with other files is never emptied)."""
+    from fleet.engine.recorder import RUN_FILES
+    from fleet.view.figures import GANTT_PNG, SPEED_PNG, TRAJECTORY_PNG
+    from fleet.view.replay import REPLAY_HTML
+
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise InputError(
+            "command line", "--out", str(out), "is a file; a run directory must be a folder"
+        )
+    found = sorted(out.iterdir())
+    if not found:
+        return
+    names = ", ".join(p.name + ("/" if p.is_dir() else "") for p in found[:6])
+    more = f" and {len(found) - 6} more" if len(found) > 6 else ""
+    if not force:
+        raise InputError(
+            "command line",
+            "--out",
+            str(out),
+            f"already holds files ({names}{more}); a run directory is written fresh, so that "
+            "no figure or table of an earlier run survives: give another --out, or --force to "
+            "clear the earlier run's files first",
+        )
+    ours = {*RUN_FILES, TRAJECTORY_PNG, SPEED_PNG, GANTT_PNG, REPLAY_HTML}
+    foreign = [p.name for p in found if p.name not in ours or not p.is_file()]
+    if foreign:
+        raise InputError(
+            "command line",
+            "--out",
+            str(out),
+            f"holds files no run writes ({', '.join(foreign[:6])}); --force clears only a "
+            "run's own files, so choose another --out",
+        )
+    for path in found:
+        path.unlink()
+
+
+@contextmanager
+def _stop_on_interrupt(errors: Console) -> Iterator[Callable[[], bool]]:
+    """A first Ctrl-C asks the run to stop at its next step (`World.run`'s `stop`); a second
+    one interrupts at once. Yields the question `stop` asks."""
+    asked: list[bool] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        if asked:
+            raise KeyboardInterrupt
+        asked.append(True)
+        errors.print(
+            "stopping at the next step to save what ran (Ctrl-C again to stop at once)",
+            highlight=False,
+        )
+
+    try:
+        previous = signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: Ctrl-C keeps its usual meaning
+        yield lambda: False
+        return
+    try:
+        yield lambda: bool(asked)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _simulate(
+    args: argparse.Namespace, console: Console, errors: Console, scenario, make_world
+) -> int:
+    """Build the World, run it with a progress bar, write the run directory, show key figures."""
+    # The default folder is the run's own, by name and seed: running again replaces that run.
+    # A folder the user names is refused when it holds a run, unless --force.
+    out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
+    _fresh_run_dir(out, args.force or args.out is None)
+    talk = errors if args.json else console  # --json keeps stdout for the JSON
+    world = make_world()
+    if not args.quiet:
+        talk.print(
+            f"[bold]{escape(scenario.name)}[/]: {len(world.robots)} robots on "
+            f"{escape(world.floor.name)} ({len(world.floor.regions)} regions), "
+            f"{escape(scenario.controller.name)} + {escape(scenario.dispatcher.name)}, "
+            f"{scenario.duration_s:g} s simulated, seed {scenario.seed}"
+        )
+    with _stop_on_interrupt(errors) as stop, _run_progress(errors, args.quiet) as progress:
+        task = progress.add_task("run", total=scenario.duration_s, rtf="")
+        wall0 = time.perf_counter()
+
+        def advance(now: float) -> None:
+            wall = time.perf_counter() - wall0
+            rtf = f"{now / wall:,.1f}x real time" if wall > 0 and now > 0 else ""
+            progress.update(task, completed=now, rtf=rtf)
+
+        result = world.run(advance, stop=stop)
+    summary = result.summary
     world.write(out)
-    if args.figures:
+    complete = summary["complete"]
+    if args.figures and complete:
         from fleet.view.figures import save_run_figures
 
         save_run_figures(out, world.floor)
-    if not args.quiet:
-        _kpi_table(console, result.summary)
-        console.print(f"run directory: {out}")
-    jobs = result.summary["jobs"]
-    if not jobs["accounted"]:
-        Console(stderr=True).print(
-            f"[bold red]error:[/] job accounting broken: {jobs['released']} released, "
-            f"{jobs['completed']} completed, {jobs['failed']} failed, "
-            f"{jobs['in_progress']} in progress (see {out / 'events.csv'})"
+    if args.json:
+        _print_json({"run_dir": str(out), "complete": complete, "summary": summary})
+    elif not args.quiet:
+        _kpi_table(console, summary)
+        console.print(f"run directory: {escape(str(out))}", soft_wrap=True)
+    if not complete:
+        _error(
+            errors,
+            f"interrupted at {summary['sim_time_s']:g} s of {scenario.duration_s:g} s: {out} "
+            'holds the run so far, and its summary.json says "complete": false (no figures; '
+            f"`fleet plot {out}` draws them)",
         )
-        return 1
-    return 0
+        return EXIT_INTERRUPTED
+    jobs = summary["jobs"]
+    if not jobs["accounted"]:
+        _error(
+            errors,
+            f"job accounting broken: {jobs['released']} released, {jobs['completed']} completed, "
+            f"{jobs['failed']} failed, {jobs['in_progress']} in progress "
+            f"(see {out / 'events.csv'})",
+        )
+        return EXIT_FAILED
+    return EXIT_OK
 
 
-def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
+def _run_progress(errors: Console, quiet: bool) -> Progress:
+    """The run's progress bar, on stderr and only on a terminal: simulated seconds done of the
+    total, the estimated time left and how much faster than real time the run goes."""
+    return Progress(
+        TextColumn("simulating"),
+        BarColumn(),
+        TextColumn("{task.completed:>7,.0f} / {task.total:,.0f} s"),
+        TextColumn("{task.fields[rtf]}"),
+        TextColumn("left"),
+        TimeRemainingColumn(),
+        console=errors,
+        transient=True,
+        disable=quiet or not errors.is_terminal,
+    )
+
+
+def _print_json(data: Any) -> None:
+    # Plain stdout, not rich: the output is for programs.
+    sys.stdout.write(json.dumps(data, indent=2, default=str) + "\n")
+
+
+# -- studies ----------------------------------------------------------------------------------
+def _cmd_sweep(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from contextlib import nullcontext
 
-    from fleet.study.sweep import dask_executor, load_study, run_study
+    from fleet.study.sweep import SweepInterrupted, dask_executor, load_study, run_study
 
+    jobs = args.jobs
+    if args.old_workers is not None:
+        _warn(
+            errors,
+            "fleet sweep --workers is now --jobs (-j): --workers means agent processes on "
+            "`fleet run`; --workers here will go in a later release",
+        )
+        jobs = jobs if jobs is not None else args.old_workers
     study = load_study(args.study)
     out = args.out or Path("runs") / study.name
     if out.exists() and not out.is_dir():
-        raise FleetError(f"--out {out}: is a file; the study needs a directory")
+        raise InputError(
+            "command line", "--out", str(out), "is a file; the study needs a directory"
+        )
     total = len(study.cells)
     where = f"Dask scheduler {args.scheduler}" if args.scheduler else "local processes"
-    errors = Console(stderr=True, soft_wrap=True)
+    talk = errors if args.json else console
     if not args.quiet:
-        console.print(
+        talk.print(
             f"[bold]{escape(study.name)}[/]: {total} cells ({len(study.seeds)} seeds) on "
             f"{where} into {escape(str(out))}",
             soft_wrap=True,
@@ -371,8 +726,10 @@ def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
             TextColumn("{task.completed}/{task.total}"),
             TextColumn("{task.fields[failed]} failed"),
             TimeElapsedColumn(),
-            console=console,
-            disable=args.quiet,
+            TextColumn("left"),
+            TimeRemainingColumn(),
+            console=errors,
+            disable=args.quiet or not errors.is_terminal,
         ) as bar,
     ):
         task = bar.add_task("sweep", total=total, failed=0)
@@ -388,47 +745,102 @@ def _cmd_sweep(args: argparse.Namespace, console: Console) -> int:
                     f"[red]cell {record.get('cell')} ({escape(params)}, seed "
                     f"{record.get('seed')}) failed{when}:[/] {escape(str(record.get('error')))}",
                     highlight=False,
+                    soft_wrap=True,
                 )
             bar.update(task, completed=done, failed=failed)
 
-        result = run_study(
-            study,
-            out,
-            executor=ex,
-            workers=args.workers,
-            progress=progress,
-            retry_failed=args.retry_failed,
+        try:
+            result = run_study(
+                study,
+                out,
+                executor=ex,
+                workers=jobs,
+                progress=progress,
+                retry_failed=args.retry_failed,
+            )
+        except SweepInterrupted as stopped:
+            result = stopped.result
+    if args.json:
+        _print_json(
+            {
+                "study": study.name,
+                "out_dir": str(result.out_dir),
+                "complete": result.complete,
+                "cells": total,
+                "ok": result.ok,
+                "failed": result.failed,
+                "skipped": result.skipped,
+                "results": [str(p) for p in result.results_paths],
+                "records": result.records,
+            }
         )
-    if not args.quiet:
+    elif not args.quiet:
         console.print(
             f"{result.ok} ok, {result.failed} failed ({result.skipped} of these cells reused "
             f"from an earlier sweep); results: {escape(str(result.results_path))}; "
             f"next: fleet report {escape(str(out))}",
             soft_wrap=True,
         )
-    return 1 if result.failed else 0
+    if not result.complete:
+        _error(
+            errors,
+            f"interrupted: {len(result.records)} of {total} cells have a record in "
+            f'{result.results_path}, and study.json says "complete": false; run the same '
+            "command again to run the rest",
+        )
+        return EXIT_INTERRUPTED
+    return EXIT_FAILED if result.failed else EXIT_OK
 
 
-def _cmd_report(args: argparse.Namespace, console: Console) -> int:
+def _cmd_report(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.study.report import write_report
 
     if args.out is not None and args.out.exists() and not args.out.is_dir():
-        raise FleetError(f"--out {args.out}: is a file; the report needs a directory")
+        raise InputError(
+            "command line", "--out", str(args.out), "is a file; the report needs a directory"
+        )
     result = write_report(args.study_dir, args.out)
+    if args.json:
+        summary = result.summary
+        _print_json(
+            {
+                "study": summary.study.name,
+                "out_dir": str(result.out_dir),
+                "report": str(result.report),
+                "figures": [str(p) for p in result.figures],
+                "runs": len(summary.study.runs),
+                "failed": len(summary.study.failed),
+                "not_run": list(summary.study.not_run),
+                # Good parts per hour: mean and 95 % interval across seeds, per setting.
+                "throughput_good_per_h": [
+                    {
+                        "panel": panel,
+                        "series": series,
+                        "x": x,
+                        "mean": iv.mean,
+                        "low": iv.low,
+                        "high": iv.high,
+                        "n": iv.n,
+                    }
+                    for (panel, series, x), iv in summary.throughput.items()
+                ],
+            }
+        )
+        return EXIT_OK
     for path in result.paths:
         console.print(f"wrote {escape(str(path))}", soft_wrap=True)
-    return 0
+    return EXIT_OK
 
 
-def _cmd_plot(args: argparse.Namespace, console: Console) -> int:
+def _cmd_plot(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.view.figures import save_run_figures
 
     for path in save_run_figures(args.run_dir):
         console.print(f"wrote {escape(str(path))}", soft_wrap=True)
-    return 0
+    return EXIT_OK
 
 
-def _cmd_replay(args: argparse.Namespace, console: Console) -> int:
+def _cmd_replay(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.view.replay import REPLAY_HTML, write_replay
 
     out = args.out
@@ -439,7 +851,51 @@ def _cmd_replay(args: argparse.Namespace, console: Console) -> int:
         f"wrote {escape(str(path))} (open it in a browser; it needs no server or network)",
         soft_wrap=True,
     )
-    return 0
+    return EXIT_OK
+
+
+def _cmd_new_plugin(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from fleet.plugins.scaffold import write_plugin
+
+    made = write_plugin(args.name, args.kind, args.out)
+    for path in made.files:
+        console.print(f"wrote {escape(str(path))}", soft_wrap=True)
+    root = escape(str(made.root))
+    console.print(
+        f"next: pip install -e {root} (into the environment fleet runs in); fleet plugins "
+        f"lists {made.name}; python -m pytest {root}/tests runs the conformance kit; a "
+        f'scenario uses it with [{made.kind}] name = "{made.name}"',
+        soft_wrap=True,
+        highlight=False,
+    )
+    return EXIT_OK
+
+
+# -- option values ----------------------------------------------------------------------------
+_KEY = re.compile(r"^[A-Za-z0-9_\-]+(\.[A-Za-z0-9_\-]+)*$")
+
+
+def _setting(text: str) -> tuple[str, Any]:
+    """``--set KEY=VALUE``: the dotted key and the value read as TOML (a bare word: text)."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not _KEY.match(key):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: write KEY=VALUE with a dotted scenario key, e.g. robots.count=8"
+        )
+    try:
+        return key, tomllib.loads(f"value = {value.strip()}")["value"]
+    except tomllib.TOMLDecodeError:
+        return key, value.strip()
+
+
+def _address(example: str) -> Callable[[str], str]:
+    def check(text: str) -> str:
+        if not re.match(r"^(tcp|ipc)://\S+$", text):
+            raise argparse.ArgumentTypeError(f"{text!r}: must be a ZeroMQ address, e.g. {example}")
+        return text
+
+    return check
 
 
 def _positive_float(text: str) -> float:
@@ -449,6 +905,16 @@ def _positive_float(text: str) -> float:
         value = math.nan
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text!r}: must be a number > 0")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a number >= 0")
     return value
 
 
@@ -524,7 +990,7 @@ def _kpi_table(console: Console, s: dict) -> None:
     console.print(t)
 
 
-def _cmd_plugins(args: argparse.Namespace, console: Console) -> int:
+def _cmd_plugins(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.plugins import discover
 
     with warnings.catch_warnings(record=True) as caught:
@@ -542,16 +1008,16 @@ def _cmd_plugins(args: argparse.Namespace, console: Console) -> int:
         t.add_row(info.kind, info.name, escape(where), status)
     console.print(t)
     for w in caught:
-        Console(stderr=True).print(f"[yellow]warning:[/] {escape(str(w.message))}", highlight=False)
-    return 0
+        _warn(errors, str(w.message))
+    return EXIT_OK
 
 
-def _cmd_map(args: argparse.Namespace, console: Console) -> int:
+def _cmd_map(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.floor import load_floor
 
     floor = load_floor(args.file)
     xmin, ymin, xmax, ymax = floor.bounds
-    console.print(f"[bold]{floor.name}[/] ({floor.source})")
+    console.print(f"[bold]{escape(floor.name)}[/] ({escape(str(floor.source))})")
     console.print(
         f"{xmax - xmin:g} x {ymax - ymin:g} m, free area {floor.free_space.area:.1f} m2, "
         f"{len(floor.regions)} convex regions, {floor.graph.number_of_edges()} adjacencies"
@@ -567,30 +1033,39 @@ def _cmd_map(args: argparse.Namespace, console: Console) -> int:
         label = f"{limit[0]:g}" if limit[0] == limit[1] else f"{limit[0]:g} x {limit[1]:g}"
         t.add_row(label, str(len(rs)), f"{sum(r.polygon.area for r in rs):.1f}")
     console.print(t)
-    console.print("stations: " + ", ".join(f"{s.name} ({s.kind})" for s in floor.spec.stations))
-    return 0
+    stations = ", ".join(f"{s.name} ({s.kind})" for s in floor.spec.stations)
+    console.print(f"stations: {escape(stations)}", soft_wrap=True)
+    return EXIT_OK
 
 
-def _cmd_gcode(args: argparse.Namespace, console: Console) -> int:
-    import json
-
+def _cmd_gcode(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from fleet.errors import GcodeError
     from fleet.printing.gcode import analyze
 
+    if args.old_map:
+        _warn(
+            errors,
+            "fleet gcode --map is now --classify: --map names a floor map on the other "
+            "commands; --map here will go in a later release",
+        )
     classification: dict[str, str] = {}
-    for item in args.map:
+    for item in [*args.old_map, *args.classify]:
         name, sep, kind = item.partition("=")
         if not sep or not name.strip():
             raise GcodeError(
-                str(args.file), "--map", item, "write NAME=KIND, e.g. --map 'Gap fill=contour'"
+                str(args.file),
+                "--classify",
+                item,
+                "write NAME=KIND, e.g. --classify 'Gap fill=contour'",
             )
         classification[name.strip()] = kind.strip()
     a = analyze(args.file, min_task_s=args.min_task, classification=classification)
     if args.json:
-        # Plain stdout, not rich: the output is for programs.
-        sys.stdout.write(json.dumps(a.to_json(), indent=2) + "\n")
-        return 0
-    console.print(f"[bold]{escape(a.file)}[/] ({a.slicer or 'unknown slicer'}), {a.layers} layers")
+        _print_json(a.to_json())
+        return EXIT_OK
+    console.print(
+        f"[bold]{escape(a.file)}[/] ({escape(a.slicer or 'unknown slicer')}), {a.layers} layers"
+    )
     t = Table(header_style="bold")
     t.add_column("kind")
     t.add_column("time", justify="right")
@@ -613,11 +1088,11 @@ def _cmd_gcode(args: argparse.Namespace, console: Console) -> int:
         first.add_row(task.kind, _hms(task.start_s), _hms(task.end_s), str(task.layer))
     console.print(first)
     for w in a.warnings:
-        Console(stderr=True).print(f"[yellow]warning:[/] {escape(w)}", highlight=False)
-    return 0
+        _warn(errors, w)
+    return EXIT_OK
 
 
-def _cmd_schema(args: argparse.Namespace, console: Console) -> int:
+def _cmd_schema(args: argparse.Namespace, console: Console, errors: Console) -> int:
     import msgspec
 
     from fleet.floor import MapFile
@@ -631,9 +1106,11 @@ def _cmd_schema(args: argparse.Namespace, console: Console) -> int:
         try:
             args.out.write_text(text + "\n", encoding="utf-8")
         except OSError as exc:
-            raise FleetError(f"--out {args.out}: cannot write the schema: {exc.strerror}") from None
-        console.print(f"wrote the {args.kind} schema to {args.out}", highlight=False)
-    return 0
+            raise InputError(
+                "command line", "--out", str(args.out), f"cannot write the schema: {exc.strerror}"
+            ) from None
+        console.print(f"wrote the {args.kind} schema to {escape(str(args.out))}", highlight=False)
+    return EXIT_OK
 
 
 def _hms(seconds: float) -> str:

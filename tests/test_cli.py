@@ -84,17 +84,17 @@ def test_run_writes_the_run_directory(scenario, tmp_path, capsys):
     assert all(j["part"] == "" and j["passed"] == "" for j in jobs)
 
 
-def test_bad_scenario_exits_2_with_the_message(tmp_path, capsys):
+def test_bad_scenario_exits_1_with_the_message(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text('[scenario]\nmap = "nowhere.toml"\n')
-    assert main(["run", str(bad)]) == 2
+    assert main(["run", str(bad)]) == 1
     assert "scenario.map = 'nowhere.toml'" in capsys.readouterr().err
 
 
 def test_bad_map_message_is_printed_whole(tmp_path, capsys):
     bad = tmp_path / "bad_map.toml"
     bad.write_text('[floor]\nname = "x"\nrect = [0, 0, 9, 9]\ndefault_v_max = 1.0\ncolour = 1\n')
-    assert main(["map", str(bad)]) == 2
+    assert main(["map", str(bad)]) == 1
     err = capsys.readouterr().err
     # Square brackets in the message survive the terminal markup, on one line.
     assert f"{bad}: floor.colour = 1: unknown key in [floor]; allowed keys:" in err

@@ -50,10 +50,10 @@ def write_study(
 
 
 def unwrap(text: str) -> str:
-    """Printed text with rich's line breaks removed.
+    """Printed text as one line.
 
-    Off a terminal rich wraps at 80 columns, keeping the space before each break and splitting
-    words longer than a line, so joining the lines gives back what was printed.
+    Off a terminal the CLI no longer wraps (tests/test_cli_conventions.py checks that); joining
+    the lines lets these tests read several printed lines as one sentence.
     """
     return "".join(text.splitlines())
 
@@ -100,7 +100,7 @@ def swept(tmp_path_factory):
     study = write_study(folder, TINY_GRID)
     out = folder / "out"
     proc = subprocess.run(
-        [exe, "sweep", str(study), "--out", str(out), "--workers", "2"],
+        [exe, "sweep", str(study), "--out", str(out), "--jobs", "2"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -184,7 +184,7 @@ def test_a_quiet_sweep_prints_nothing_when_every_cell_is_ok(swept, capsys):
 def test_a_failing_cell_exits_1_prints_its_error_and_the_others_run(tmp_path, capsys):
     study = write_study(tmp_path, FAILING_GRID, name="failing", seeds="[1]", duration=60)
     out = tmp_path / "out"
-    assert main(["sweep", str(study), "--out", str(out), "--workers", "2"]) == 1
+    assert main(["sweep", str(study), "--out", str(out), "-j", "2"]) == 1
     rows = read_rows(out / "results.csv")
     assert [(r["controller"], r["status"]) for r in rows] == [
         ("follower", "ok"),
@@ -238,14 +238,14 @@ def test_a_failing_cell_exits_1_prints_its_error_and_the_others_run(tmp_path, ca
         ("robots = [1]\n", "seed = 3\n", "study.seed = 3", "unknown key"),
     ],
 )
-def test_a_bad_study_file_exits_2_naming_the_file_the_field_and_the_value(
+def test_a_bad_study_file_exits_1_naming_the_file_the_field_and_the_value(
     tmp_path, capsys, grid, study_line, where, rule
 ):
     study = write_study(tmp_path, grid)
     if study_line:
         study.write_text(study.read_text().replace("[study]\n", "[study]\n" + study_line))
     out = tmp_path / "out"
-    assert main(["sweep", str(study), "--out", str(out)]) == 2
+    assert main(["sweep", str(study), "--out", str(out)]) == 1
     captured = capsys.readouterr()
     assert captured.out == ""
     assert f"error: {study}: {where}: " in captured.err and rule in captured.err
@@ -253,9 +253,9 @@ def test_a_bad_study_file_exits_2_naming_the_file_the_field_and_the_value(
     assert not out.exists()  # refused before anything ran
 
 
-def test_a_missing_study_file_exits_2_naming_it(tmp_path, capsys):
+def test_a_missing_study_file_exits_1_naming_it(tmp_path, capsys):
     missing = tmp_path / "nope.toml"
-    assert main(["sweep", str(missing)]) == 2
+    assert main(["sweep", str(missing)]) == 1
     err = capsys.readouterr().err
     assert f"{missing}: (file) = '{missing}': no such study file" in err
 
@@ -282,11 +282,11 @@ def test_report_writes_the_markdown_and_figures_and_lists_them(swept, tmp_path, 
 
 
 @pytest.mark.parametrize("kind", ["empty", "missing"])
-def test_report_on_a_directory_without_a_study_exits_2_naming_it(tmp_path, capsys, kind):
+def test_report_on_a_directory_without_a_study_exits_1_naming_it(tmp_path, capsys, kind):
     folder = tmp_path / kind
     if kind == "empty":
         folder.mkdir()
-    assert main(["report", str(folder)]) == 2
+    assert main(["report", str(folder)]) == 1
     captured = capsys.readouterr()
     assert captured.out == ""
     assert f"error: {folder / 'results.csv'}: (file) = 'missing': " in captured.err
@@ -331,9 +331,9 @@ def test_replay_writes_one_page_into_the_run_dir_or_where_asked(run_dir, tmp_pat
 
 
 @pytest.mark.parametrize("command", ["plot", "replay"])
-def test_plot_and_replay_of_a_missing_run_dir_exit_2_naming_it(tmp_path, capsys, command):
+def test_plot_and_replay_of_a_missing_run_dir_exit_1_naming_it(tmp_path, capsys, command):
     missing = tmp_path / "no_such_run"
-    assert main([command, str(missing)]) == 2
+    assert main([command, str(missing)]) == 1
     captured = capsys.readouterr()
     assert captured.out == "" and "Traceback" not in captured.err
     assert f"error: {missing / 'trajectories.csv'}: (file) = 'missing': " in captured.err
@@ -351,11 +351,22 @@ def test_plugins_lists_the_print_strategies_as_working_controllers(capsys):
 
 
 # -- user mistakes get a message, not a traceback -------------------------------------------------
-def test_workers_below_one_is_refused_with_a_message(tmp_path, capsys):
+@pytest.mark.parametrize("option", ["--jobs", "--workers"])
+def test_jobs_below_one_is_a_usage_error(tmp_path, capsys, option):
     study = write_study(tmp_path, TINY_GRID)
-    argv = ["sweep", str(study), "--out", str(tmp_path / "out"), "--workers", "0"]
+    argv = ["sweep", str(study), "--out", str(tmp_path / "out"), option, "0"]
     assert exit_status(argv) == 2
-    assert "--workers" in capsys.readouterr().err
+    assert f"{option}: '0': must be a whole number >= 1" in capsys.readouterr().err
+
+
+def test_sweep_workers_is_the_old_name_of_jobs_and_warns(swept, capsys):
+    # --workers means agent processes on `fleet run`; on `fleet sweep` it is now --jobs.
+    study, out, proc = swept
+    assert proc.returncode == 0, proc.stderr
+    assert main(["sweep", str(study), "--out", str(out), "--workers", "2"]) == 0
+    captured = capsys.readouterr()
+    assert "fleet sweep --workers is now --jobs (-j)" in unwrap(captured.err)
+    assert "4 ok, 0 failed (4 of these cells reused" in unwrap(captured.out)
 
 
 def test_replay_out_naming_a_directory_writes_the_page_into_it(run_dir, tmp_path, capsys):
@@ -369,7 +380,7 @@ def test_report_out_naming_a_file_is_refused_with_a_message(swept, tmp_path, cap
     assert proc.returncode == 0, proc.stderr
     taken = tmp_path / "taken"
     taken.write_text("")
-    assert main(["report", str(out), "--out", str(taken)]) == 2
+    assert main(["report", str(out), "--out", str(taken)]) == 1
     assert str(taken) in capsys.readouterr().err
 
 
@@ -377,7 +388,7 @@ def test_sweep_out_naming_a_file_is_refused_with_a_message(tmp_path, capsys):
     study = write_study(tmp_path, TINY_GRID)
     taken = tmp_path / "taken"
     taken.write_text("")
-    assert main(["sweep", str(study), "--out", str(taken)]) == 2
+    assert main(["sweep", str(study), "--out", str(taken)]) == 1
     assert str(taken) in capsys.readouterr().err
 
 

@@ -420,10 +420,8 @@ def test_merging_never_loosens_a_cap(spec: list[tuple[str, float]], min_task: fl
 
 
 def test_cli_json(capsys: pytest.CaptureFixture[str]) -> None:
-    assert (
-        main(["gcode", str(T_PRUSA), "--json", "--min-task", "20", "--map", "Gap fill=contour"])
-        == 0
-    )
+    argv = ["gcode", str(T_PRUSA), "--json", "--min-task", "20", "--classify", "Gap fill=contour"]
+    assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert {"file", "total_s", "by_kind_s", "tasks", "slicer", "layers", "slicer_estimate_s",
             "warnings"} <= out.keys()  # fmt: skip
@@ -442,11 +440,40 @@ def test_cli_table(capsys: pytest.CaptureFixture[str]) -> None:
     assert "1 tasks of at least 10 s" in out
 
 
-def test_cli_errors_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["gcode", str(PRISM), "--map", "Gap fill"]) == 2
-    assert "--map = 'Gap fill': write NAME=KIND" in capsys.readouterr().err
-    assert main(["gcode", str(PRISM), "--map", "Gap fill=fast"]) == 2
+def test_cli_errors_exit_1(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["gcode", str(PRISM), "--classify", "Gap fill"]) == 1
+    assert "--classify = 'Gap fill': write NAME=KIND" in capsys.readouterr().err
+    assert main(["gcode", str(PRISM), "--classify", "Gap fill=fast"]) == 1
     assert "'fast'" in capsys.readouterr().err
+
+
+def test_the_old_map_option_still_classifies_with_a_warning(capsys: pytest.CaptureFixture[str]):
+    # --map names a floor map on every other command; here it became --classify.
+    assert main(["gcode", str(T_PRUSA), "--json", "--map", "Gap fill=contour"]) == 0
+    captured = capsys.readouterr()
+    assert "--map is now --classify" in captured.err
+    assert main(["gcode", str(T_PRUSA), "--json", "--classify", "Gap fill=contour"]) == 0
+    assert json.loads(capsys.readouterr().out) == json.loads(captured.out)
+
+
+@pytest.mark.parametrize(
+    ("text", "line"),
+    [
+        ("# A README\n\nNotes on the build.\n* a list item\n", "line 1"),
+        ("G1 X1 E1\n*12 a bare checksum\nG1 X2 E2\n", None),
+        ("G1 X1 E1\nN12\nN13 *7\nG1 X2 E2\n", None),
+    ],
+)
+def test_text_that_is_not_quite_gcode_is_read_or_refused_by_line(tmp_path, text, line):
+    # The first crashed with IndexError (a line starting with "*", after a line starting with
+    # "N" passed for a line number).
+    path = tmp_path / "odd.gcode"
+    path.write_text(text)
+    if line is None:
+        assert analysis(path).total_s > 0
+    else:
+        with pytest.raises(GcodeError, match=rf"odd\.gcode: {line} = "):
+            analysis(path)
 
 
 def test_docstring_examples_run() -> None:

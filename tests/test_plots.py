@@ -141,6 +141,16 @@ def test_a_print_cap_lowers_the_limit_line_only_while_the_task_runs(run_dir):
     assert "print: contour" in legend
 
 
+def test_the_speed_axis_ends_where_the_run_ends(run_dir):
+    # A print task cut off by the end of the run leaves a cap past it in caps.csv.
+    (run_dir / "caps.csv").write_text(CAPS_HEADER + "r01,j1,contour,50,95,0.3\n")
+    run = load_run(run_dir)
+    assert run.t_end == 60.0
+    for fig in (speed_figure(run.tracks, run.caps, t_end=run.t_end), speed_figure(run.tracks)):
+        for ax in fig.axes:
+            assert ax.get_xlim() == (0.0, pytest.approx(60.0, abs=0.25))
+
+
 def test_missing_or_empty_caps_mean_no_print_tasks(run_dir):
     assert load_caps(run_dir / "caps.csv") == ()
     without = load_run(run_dir)

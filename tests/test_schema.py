@@ -108,7 +108,7 @@ def test_out_writes_the_schema_to_a_file(tmp_path: Path, capsys):
 
 def test_out_in_a_missing_folder_is_an_error_not_a_traceback(tmp_path: Path, capsys):
     out = tmp_path / "no-such-folder" / "scenario.schema.json"
-    assert main(["schema", "scenario", "--out", str(out)]) == 2
+    assert main(["schema", "scenario", "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert "--out" in err and "no-such-folder" in err and "Traceback" not in err
     assert not out.exists()

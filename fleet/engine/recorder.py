@@ -7,9 +7,10 @@ writes the files.
 Output contract (extend it, never break it):
 
 - ``summary.json``: scenario, map, seed, controller, dispatcher, robots, sim_time_s,
-  wall_time_s, jobs {released, completed, good, defective, late, ...}, throughput_per_h,
-  throughput_good_per_h, mean_lead_time_s, distance_m, violations {obstacle, speed_zone,
-  print_speed, collision}, quality {prints, outcomes {good, defective, failed}, max_error_mm},
+  complete (false when the run was stopped before its duration, e.g. by Ctrl-C), wall_time_s,
+  jobs {released, completed, good, defective, late, ...}, throughput_per_h, throughput_good_per_h,
+  mean_lead_time_s, distance_m, violations {obstacle, speed_zone, print_speed, collision},
+  quality {prints, outcomes {good, defective, failed}, max_error_mm},
   solver {steps, median_ms, p95_ms, max_ms, fallbacks, termination {outcome: count}, ...}
   (solve statistics reported by optimising controllers), per_robot [{id, distance_m,
   jobs_completed, turned_rad, radius_m}], digest (sha256 of the trajectories: the same seed gives
@@ -48,7 +49,19 @@ import numpy as np
 from fleet.floor import Floor
 from fleet.plugins import SolveReport
 
-__all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S", "PLAN_SAMPLE_S"]
+__all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S", "PLAN_SAMPLE_S", "RUN_FILES"]
+
+#: Every file `Recorder.write` may write into a run directory (the last two only when needed).
+RUN_FILES = (
+    "summary.json",
+    "trajectories.csv",
+    "events.csv",
+    "jobs.csv",
+    "tasks.csv",
+    "plans.csv",
+    "caps.csv",
+    "violations.csv",
+)
 
 #: Shortest time (s) between two planned horizons the recorder keeps for one robot.
 PLAN_RECORD_S = 1.0

@@ -102,7 +102,8 @@ def summarise(
         }
         for rid, r in robots.items()
     ]
-    hours = scenario.duration_s / 3600.0
+    # A run stopped early (Ctrl-C) is judged over the time it ran.
+    hours = min(now, scenario.duration_s) / 3600.0
     summary = {
         "scenario": scenario.name,
         "scenario_file": scenario.source,
@@ -112,6 +113,8 @@ def summarise(
         "dispatcher": scenario.dispatcher.name,
         "robots": len(robots),
         "sim_time_s": now,
+        # False when the run was stopped before scenario.duration_s (interrupted).
+        "complete": now >= scenario.duration_s,
         "wall_time_s": round(wall_time_s, 3),
         "jobs": {
             "released": len(jobs),

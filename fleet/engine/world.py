@@ -263,8 +263,17 @@ class World:
             yield env.timeout(period)
 
     # -- running --------------------------------------------------------------------------------
-    def run(self, progress: Callable[[float], None] | None = None) -> RunResult:
+    def run(
+        self,
+        progress: Callable[[float], None] | None = None,
+        stop: Callable[[], bool] | None = None,
+    ) -> RunResult:
         """Simulate `scenario.duration_s` seconds; returns the summary and the safety report.
+
+        `progress` is called with the simulated time about 200 times over the run. `stop` is
+        asked at every control tick of the fastest robot; once it answers True the run ends
+        there, between two steps, and the summary says ``"complete": false`` (how `fleet run`
+        stops on Ctrl-C and still writes what it has).
 
         A World runs once: its bus is closed at the end. Build a new World for another run.
         """
@@ -276,8 +285,8 @@ class World:
         self.env.process(self.lifecycle.release())
         for robot in self.robots.values():
             self.env.process(self._robot(robot))
-        if progress is not None:
-            self.env.process(self._progress(progress, duration))
+        if progress is not None or stop is not None:
+            self.env.process(self._watch(progress, stop, duration))
         try:
             self.env.run(until=duration)
         finally:
@@ -297,14 +306,28 @@ class World:
             self._tmpdir.cleanup()
             self._tmpdir = None
 
-    def _progress(
-        self, progress: Callable[[float], None], duration: float
+    def _watch(
+        self,
+        progress: Callable[[float], None] | None,
+        stop: Callable[[], bool] | None,
+        duration: float,
     ) -> Generator[simpy.Event, None, None]:
-        """Report the simulated time about 200 times over the run (at most once per tick)."""
-        step = max(duration / 200.0, min(r.spec.period for r in self.robots.values()))
+        """Report the simulated time about 200 times over the run (at most once per tick), and
+        end the run at the first tick `stop` asks to."""
+        tick = min(r.spec.period for r in self.robots.values())
+        every = max(duration / 200.0, tick)
+        next_report = 0.0
         while True:
-            progress(self.env.now)
-            yield self.env.timeout(step)
+            if stop is not None and stop():
+                # Stops env.run where it is: no process is half-way through a step.
+                ending = self.env.event()
+                ending.callbacks.append(simpy.core.StopSimulation.callback)
+                ending.succeed()
+                return
+            if progress is not None and self.env.now >= next_report:
+                progress(self.env.now)
+                next_report += every
+            yield self.env.timeout(tick if stop is not None else every)
 
     def _summarise(self, wall_time: float) -> RunResult:
         safety = check_safety(

@@ -11,7 +11,9 @@ field and the value. Command-line options override the file through `Scenario.ov
 from __future__ import annotations
 
 import math
+import re
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -271,19 +273,92 @@ def default_scenario() -> Scenario:
     return load_scenario(REPO_ROOT / "scenarios" / "default.toml")
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario file; relative paths in it are relative to the file."""
+def load_scenario(
+    path: str | Path,
+    settings: Mapping[str, Any] | None = None,
+    *,
+    settings_source: str = "--set",
+) -> Scenario:
+    """Read and validate a scenario file; relative paths in it are relative to the file.
+
+    Parameters
+    ----------
+    path:
+        The scenario TOML.
+    settings:
+        Values written over the file's before it is checked, by dotted key (``robots.count``,
+        ``controller.options.horizon``), typed as TOML values are (``fleet run --set``). File
+        names among them (``scenario.map``, ``parts.<name>``, ``quality.calibration``) are
+        relative to the current directory, not to the file.
+    settings_source:
+        How errors name where the settings came from.
+
+    Raises
+    ------
+    ScenarioError
+        Naming the file, or `settings_source` when a setting is what is wrong, with the field
+        and the value.
+    """
     path = Path(path)
     src = str(path)
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ScenarioError(src, "(file)", src, "no such scenario file") from None
+    except IsADirectoryError:
+        raise ScenarioError(
+            src, "(file)", src, "cannot read the scenario file: it is a directory"
+        ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ScenarioError(src, "(file)", src, f"cannot read the scenario file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
-    return parse_scenario(raw, path)
+    if not settings:
+        return parse_scenario(raw, path)
+    for key, value in settings.items():
+        _put_setting(raw, key, value, settings_source)
+    try:
+        return parse_scenario(raw, path)
+    except ScenarioError as exc:
+        if not any(_within(exc.field, key) for key in settings):
+            raise
+        raise ScenarioError(settings_source, exc.field, exc.value, exc.rule) from None
+
+
+#: Settings whose values are file names, read relative to the current directory.
+_PATH_SETTINGS = re.compile(r"^(scenario\.map|quality\.calibration|parts\.[^.]+)$")
+
+
+def _put_setting(raw: dict[str, Any], key: str, value: Any, source: str) -> None:
+    """Write `value` at the dotted `key` of the scenario's tables, making tables on the way."""
+    parts = key.split(".")
+    if not all(parts):
+        raise ScenarioError(source, key, value, "a key is a dotted path like robots.count")
+    if isinstance(value, str) and _PATH_SETTINGS.match(key):
+        value = str(Path(value).resolve())
+    table = raw
+    for depth, part in enumerate(parts[:-1]):
+        inner = table.setdefault(part, {})
+        if not isinstance(inner, dict):
+            where = ".".join(parts[: depth + 1])
+            raise ScenarioError(
+                source,
+                key,
+                value,
+                f"{where} is not a table in the scenario ({type(inner).__name__}), so it has no "
+                f"key {parts[depth + 1]!r}",
+            )
+        table = inner
+    table[parts[-1]] = value
+
+
+def _within(field: str, key: str) -> bool:
+    """Whether the error's `field` is the setting `key`, inside it, or a table holding it."""
+    return (
+        field == key
+        or field.startswith((key + ".", key + "["))
+        or key.startswith((field + ".", field + "["))
+    )
 
 
 def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None = None) -> Scenario:

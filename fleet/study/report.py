@@ -945,7 +945,7 @@ def _read_study_json(path: Path) -> dict[str, Any]:
         return {}
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(str(path), "(file)", str(exc), "must be valid JSON") from exc
     if not isinstance(meta, dict):
         raise InputError(str(path), "(file)", meta, "must be a JSON object")
@@ -989,7 +989,7 @@ def _read_csv(path: Path) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
             reader = csv.DictReader(fh)
             header = list(reader.fieldnames or [])
             return header, [(reader.line_num, row) for row in reader]
-    except UnicodeDecodeError as exc:
+    except (UnicodeDecodeError, csv.Error) as exc:
         raise InputError(str(path), "(file)", str(exc), "must be UTF-8 text (CSV)") from None
 
 

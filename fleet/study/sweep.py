@@ -51,6 +51,7 @@ import math
 import multiprocessing
 import os
 import shutil
+import signal
 import threading
 import time
 import tomllib
@@ -74,6 +75,7 @@ __all__ = [
     "Study",
     "CellSpec",
     "SweepResult",
+    "SweepInterrupted",
     "KPI_COLUMNS",
     "load_study",
     "run_study",
@@ -234,10 +236,26 @@ class SweepResult:
     #: results.csv, then results.parquet when pyarrow is installed.
     results_paths: tuple[Path, ...] = field(default_factory=tuple)
 
+    #: False when the sweep was interrupted before every cell had a record.
+    complete: bool = True
+
     @property
     def results_path(self) -> Path:
         """The CSV results table."""
         return self.results_paths[0]
+
+
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped `run_study`; `result` holds the cells finished until then.
+
+    A KeyboardInterrupt still (whoever does not catch this stops as Ctrl-C always stops), with
+    what was saved: results.csv lists the finished cells, study.json says ``"complete": false``,
+    and running the sweep again runs only the cells without a record.
+    """
+
+    def __init__(self, result: SweepResult) -> None:
+        super().__init__(f"sweep interrupted: {len(result.records)} cells have a record")
+        self.result = result
 
 
 # -- loading ------------------------------------------------------------------------------------
@@ -660,12 +678,19 @@ def run_study(
     -------
     SweepResult
         Records in cell order and the counts. A failed cell never stops the others.
+
+    Raises
+    ------
+    SweepInterrupted
+        On Ctrl-C (KeyboardInterrupt): the cells still running are stopped (the local pool's
+        workers are terminated), what finished is kept, study.json says ``"complete": false``.
     """
     if workers is not None and (not _is_int(workers) or workers < 1):
         raise ValueError(f"workers = {workers!r}: must be a whole number >= 1 (or None)")
     out = Path(out_dir).resolve()
     (out / "cells").mkdir(parents=True, exist_ok=True)
-    _write_json(out / "study.json", _study_json(study))
+    # Incomplete until the last cell has its record: a sweep stopped in any way says so.
+    _write_json(out / "study.json", _study_json(study, complete=False))
     total = len(study.cells)
     records: dict[int, dict[str, Any]] = {}
     todo: list[Cell] = []
@@ -694,6 +719,39 @@ def run_study(
         if progress is not None:
             progress(records[cell.index], done, total)
 
+    try:
+        _run_todo(executor, workers, todo, study, out, finished)
+    except KeyboardInterrupt:
+        raise SweepInterrupted(_result(out, records, paths, complete=False)) from None
+    _write_json(out / "study.json", _study_json(study, complete=True))
+    return _result(out, records, paths, complete=True)
+
+
+def _result(
+    out: Path, records: dict[int, dict[str, Any]], paths: tuple[Path, ...], *, complete: bool
+) -> SweepResult:
+    ordered = [records[i] for i in sorted(records)]
+    ok = sum(1 for r in ordered if r["status"] == CellStatus.OK)
+    return SweepResult(
+        out_dir=out,
+        records=ordered,
+        ok=ok,
+        failed=len(ordered) - ok,
+        skipped=sum(1 for r in ordered if r["skipped"]),
+        results_paths=paths,
+        complete=complete,
+    )
+
+
+def _run_todo(
+    executor: Executor | None,
+    workers: int | None,
+    todo: list[Cell],
+    study: Study,
+    out: Path,
+    finished: Callable[[Cell, dict[str, Any]], None],
+) -> None:
+    """Run the cells of `todo` on `executor`, or on local process pools."""
     if executor is not None:
         _run_cells(executor, todo, study, out, finished, own=False)
     elif todo:
@@ -713,20 +771,19 @@ def run_study(
                 break
             todo = broken
 
-    ordered = [records[i] for i in sorted(records)]
-    ok = sum(1 for r in ordered if r["status"] == CellStatus.OK)
-    return SweepResult(
-        out_dir=out,
-        records=ordered,
-        ok=ok,
-        failed=len(ordered) - ok,
-        skipped=sum(1 for r in ordered if r["skipped"]),
-        results_paths=paths,
+
+def _spawn_pool(size: int) -> ProcessPoolExecutor:
+    return ProcessPoolExecutor(
+        max_workers=size,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_ignore_interrupts,
     )
 
 
-def _spawn_pool(size: int) -> ProcessPoolExecutor:
-    return ProcessPoolExecutor(max_workers=size, mp_context=multiprocessing.get_context("spawn"))
+def _ignore_interrupts() -> None:
+    """Ctrl-C reaches a terminal's whole process group; the sweeping process alone answers it
+    (and stops the workers), so a worker never dies half-way through writing a record."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _run_cells(
@@ -743,6 +800,7 @@ def _run_cells(
     pool lost (recorded as failed instead when `last`). Shuts down `pool` when `own`."""
     futures: dict[Future, Cell] = {}
     broken: list[Cell] = []
+    interrupted = False
     try:
         for cell in cells:
             spec = study.spec(cell, out)
@@ -767,12 +825,27 @@ def _run_cells(
             except Exception as exc:  # the executor could not run it
                 record = _lost(study.spec(cell, out), exc)
             finished(cell, record)
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
         for future in futures:
             future.cancel()
         if own:
+            if interrupted:
+                # Waiting for the running cells could take minutes; their runs are lost anyway
+                # (no record: a resumed sweep runs them again).
+                _terminate_workers(pool)
             pool.shutdown(wait=True, cancel_futures=True)
     return sorted(broken, key=lambda c: c.index)
+
+
+def _terminate_workers(pool: Executor) -> None:
+    """Stop a process pool's workers now (ProcessPoolExecutor has no public way before 3.14)."""
+    processes = getattr(pool, "_processes", None) or {}
+    for process in list(processes.values()):
+        if process.is_alive():
+            process.terminate()
 
 
 def _lost(spec: CellSpec, exc: BaseException) -> dict[str, Any]:
@@ -804,9 +877,11 @@ def _current(record: dict[str, Any], cell: Cell) -> dict[str, Any]:
     return record | {"index": cell.index, "seed": cell.seed, "params": dict(cell.params)}
 
 
-def _study_json(study: Study) -> dict[str, Any]:
+def _study_json(study: Study, *, complete: bool) -> dict[str, Any]:
     return {
         "name": study.name,
+        # Whether every cell has a record (false while sweeping, or after an interruption).
+        "complete": complete,
         "file": str(study.file.resolve()),
         "scenario": str(study.scenario),
         "seeds": list(study.seeds),

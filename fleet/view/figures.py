@@ -417,7 +417,7 @@ def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
     if summary_path.is_file():
         try:
             summary = json.loads(summary_path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(str(summary_path), "(file)", str(exc), "must be valid JSON") from exc
         if not isinstance(summary, dict):
             raise InputError(str(summary_path), "(file)", summary, "must be a JSON object")
@@ -459,19 +459,24 @@ def read_csv_rows(path: Path, columns: Sequence[str]) -> list[tuple[int, dict[st
             f"a run directory written by `fleet run` has {path.name} with columns "
             + ",".join(columns),
         )
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        header = reader.fieldnames or []
-        missing = [c for c in columns if c not in header]
-        if missing:
-            raise InputError(
-                str(path),
-                "header",
-                ",".join(header),
-                f"lacks {', '.join(missing)}; needs columns {','.join(columns)}",
-            )
-        # Line numbers as an editor shows them: the header is line 1.
-        return [(reader.line_num, row) for row in reader]
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise InputError(
+                    str(path),
+                    "header",
+                    ",".join(header),
+                    f"lacks {', '.join(missing)}; needs columns {','.join(columns)}",
+                )
+            # Line numbers as an editor shows them: the header is line 1.
+            return [(reader.line_num, row) for row in reader]
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(
+            str(path), "(file)", str(exc), f"must be the CSV text `fleet run` writes as {path.name}"
+        ) from None
 
 
 def csv_number(
@@ -722,10 +727,12 @@ def speed_figure(
     *,
     robots: int = 6,
     title: str | None = None,
+    t_end: float | None = None,
 ) -> Figure:
     """The paper's velocity figure: vx, vy and the limit in force against time, per robot.
 
-    One panel per robot (the first `robots` in id order), on a shared time axis. Velocities are
+    One panel per robot (the first `robots` in id order), on a shared time axis from 0 to
+    `t_end` (default: the last sample), so the axis ends where the run ended. Velocities are
     drawn as steps (``v[k]`` held over ``[t[k], t[k+1])``); the limit of `step_limits` as a
     ``+/-`` step line; the robot's print tasks are shaded by kind.
 
@@ -765,6 +772,11 @@ def speed_figure(
         ax.set_title(rid, loc="left", fontsize=9)
         ax.set_ylabel("v (m/s)")
     axes[-1].set_xlabel("t (s)")
+    if t_end is None:
+        t_end = max((float(tracks[r].t[-1]) for r in shown if len(tracks[r].t)), default=0.0)
+    # Without limits matplotlib pads the axis, and a print cap that outlasts the run (its task
+    # was cut off by the end) would stretch it further.
+    axes[-1].set_xlim(0.0, max(t_end, 1e-9))
     handles: list[Any] = [
         Line2D([], [], color="#1f77b4", lw=1.0, label="vx"),
         Line2D([], [], color="#ff7f0e", lw=1.0, label="vy"),
@@ -976,7 +988,7 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
     out = [run.run_dir / TRAJECTORY_PNG, run.run_dir / SPEED_PNG, run.run_dir / GANTT_PNG]
     figures = [
         trajectory_figure(run.floor, run.tracks, robots=robots, title=run.title),
-        speed_figure(run.tracks, run.caps, robots=robots, title=run.title),
+        speed_figure(run.tracks, run.caps, robots=robots, title=run.title, t_end=run.t_end),
         gantt_figure(
             run.tasks,
             run.events,

@@ -157,7 +157,8 @@ def _check_commands(source: str, lines: list[str]) -> None:
         s = raw.split(";", 1)[0].strip()
         if not s:
             continue
-        if s[0] in "GgMmTtNn" and len(s) > 1 and (s[1].isdigit() or s[0] in "Nn"):
+        # A command letter and its number: "G1", "M104", "T0", "N12 G1" (not "Note", "None").
+        if s[0] in "GgMmTtNn" and len(s) > 1 and s[1].isdigit():
             return
         if first is None:
             first = (lineno, s)
@@ -316,142 +317,155 @@ class _Parser:
         cura_header: float | None = None
         cura_elapsed: float | None = None
 
-        for lineno, raw in enumerate(lines, 1):
-            if not raw:
-                continue
-            c0 = raw[0]
-            if c0 == ";":
-                if raw.startswith(";TYPE:"):
-                    name = raw[6:].strip()
-                    fid = self.feature_ids.get(name)
-                    if fid is None:
-                        fid = self.feature_ids[name] = len(self.features)
-                        self.features.append(name)
-                    feature = fid
-                elif raw.startswith(";LAYER_CHANGE") or raw.startswith(";LAYER:"):
-                    layer_marks += 1
-                elif raw.startswith(";TIME_ELAPSED:"):
-                    cura_elapsed = _float_or_none(raw[14:])
-                elif raw.startswith(";TIME:"):
-                    cura_header = _float_or_none(raw[6:])
-                elif raw.startswith("; estimated printing time (normal mode)"):
-                    m = _PRUSA_TIME.match(raw)
-                    if m:
-                        estimate = _duration(m.group(1))
-                continue
-            body = raw.split(";", 1)[0] if ";" in raw else raw
-            body = body.strip()
-            if not body:
-                continue
-            if "*" in body:  # checksum
-                body = body.split("*", 1)[0].rstrip()
-            head = body.split(None, 1)[0].upper()
-            if head[0] == "N":  # line number word
-                rest = body.split(None, 1)
-                if len(rest) < 2:
+        lineno = 0
+        try:
+            for lineno, raw in enumerate(lines, 1):
+                if not raw:
                     continue
-                body = rest[1]
-                head = body.split(None, 1)[0].upper()
-            if len(head) > 2 and head[0] in "GM" and not head[1:].replace(".", "").isdigit():
-                # "G1X10Y20": split the command from its words.
-                m = re.match(r"([GM]\d+(?:\.\d+)?)(.*)$", body, re.I)
-                if m is None:
+                c0 = raw[0]
+                if c0 == ";":
+                    if raw.startswith(";TYPE:"):
+                        name = raw[6:].strip()
+                        fid = self.feature_ids.get(name)
+                        if fid is None:
+                            fid = self.feature_ids[name] = len(self.features)
+                            self.features.append(name)
+                        feature = fid
+                    elif raw.startswith(";LAYER_CHANGE") or raw.startswith(";LAYER:"):
+                        layer_marks += 1
+                    elif raw.startswith(";TIME_ELAPSED:"):
+                        cura_elapsed = _float_or_none(raw[14:])
+                    elif raw.startswith(";TIME:"):
+                        cura_header = _float_or_none(raw[6:])
+                    elif raw.startswith("; estimated printing time (normal mode)"):
+                        m = _PRUSA_TIME.match(raw)
+                        if m:
+                            estimate = _duration(m.group(1))
                     continue
-                head = m.group(1).upper()
-                body = f"{head} {m.group(2)}"
-            layer = (layer_marks - 1 if layer_marks else 0) if use_markers else max(z_layers - 1, 0)
-
-            if head in ("G1", "G0", "G01", "G00", "G2", "G3", "G02", "G03"):
-                w = self._words(lineno, raw, body)
-                if "F" in w:
-                    if w["F"] <= 0:
-                        raise self._bad(lineno, raw, "F (feedrate) must be > 0 mm/min")
-                    feed = w["F"] * unit / 60.0
-                nx = (x + w["X"] * unit if rel_xyz else w["X"] * unit) if "X" in w else x
-                ny = (y + w["Y"] * unit if rel_xyz else w["Y"] * unit) if "Y" in w else y
-                nz = (z + w["Z"] * unit if rel_xyz else w["Z"] * unit) if "Z" in w else z
-                ne = (e + w["E"] * unit if rel_e else w["E"] * unit) if "E" in w else e
-                mx, my, mz, me = nx - x, ny - y, nz - z, ne - e
-                if head in ("G2", "G3", "G02", "G03"):
-                    xy = _arc_length(lineno, raw, self, x, y, nx, ny, w, unit, head[-1] == "2")
-                    length = math.hypot(xy, mz)
-                else:
-                    length = math.sqrt(mx * mx + my * my + mz * mz)
-                x, y, z, e = nx, ny, nz, ne
-                if length <= 0.0:
-                    if me == 0.0:
+                body = raw.split(";", 1)[0] if ";" in raw else raw
+                body = body.strip()
+                if not body:
+                    continue
+                if "*" in body:  # checksum
+                    body = body.split("*", 1)[0].rstrip()
+                    if not body:  # a line that is only "*..." (no command before the checksum)
                         continue
-                    length = abs(me)
-                    kind = OTHER
-                elif me > 0.0:
-                    kind = EXTRUDE
-                    if not use_markers and z > top_z + 1e-6:
-                        top_z = z
-                        z_layers += 1
-                        layer = z_layers - 1
-                elif mx != 0.0 or my != 0.0 or head in ("G2", "G3", "G02", "G03"):
-                    kind = TRAVEL
-                else:
-                    kind = OTHER
-                dx.append(mx)
-                dy.append(my)
-                dz.append(mz)
-                de.append(me)
-                ln_.append(length)
-                fd.append(feed)
-                dw.append(0.0)
-                mo.append(kind)
-                ft.append(feature)
-                ly.append(layer)
-                li.append(len(self.limit_sets) - 1)
-                no.append(lineno)
-            elif head in ("G4", "G04"):
-                w = self._words(lineno, raw, body)
-                seconds = w.get("S", 0.0) + w.get("P", 0.0) / 1000.0
-                if seconds < 0:
-                    raise self._bad(lineno, raw, "a dwell (G4 P ms / S s) must be >= 0")
-                if seconds > 0:
-                    dx.append(0.0)
-                    dy.append(0.0)
-                    dz.append(0.0)
-                    de.append(0.0)
-                    ln_.append(0.0)
+                head = body.split(None, 1)[0].upper()
+                if head[0] == "N":  # line number word
+                    rest = body.split(None, 1)
+                    if len(rest) < 2:
+                        continue
+                    body = rest[1]
+                    head = body.split(None, 1)[0].upper()
+                if len(head) > 2 and head[0] in "GM" and not head[1:].replace(".", "").isdigit():
+                    # "G1X10Y20": split the command from its words.
+                    m = re.match(r"([GM]\d+(?:\.\d+)?)(.*)$", body, re.I)
+                    if m is None:
+                        continue
+                    head = m.group(1).upper()
+                    body = f"{head} {m.group(2)}"
+                layer = (
+                    (layer_marks - 1 if layer_marks else 0) if use_markers else max(z_layers - 1, 0)
+                )
+
+                if head in ("G1", "G0", "G01", "G00", "G2", "G3", "G02", "G03"):
+                    w = self._words(lineno, raw, body)
+                    if "F" in w:
+                        if w["F"] <= 0:
+                            raise self._bad(lineno, raw, "F (feedrate) must be > 0 mm/min")
+                        feed = w["F"] * unit / 60.0
+                    nx = (x + w["X"] * unit if rel_xyz else w["X"] * unit) if "X" in w else x
+                    ny = (y + w["Y"] * unit if rel_xyz else w["Y"] * unit) if "Y" in w else y
+                    nz = (z + w["Z"] * unit if rel_xyz else w["Z"] * unit) if "Z" in w else z
+                    ne = (e + w["E"] * unit if rel_e else w["E"] * unit) if "E" in w else e
+                    mx, my, mz, me = nx - x, ny - y, nz - z, ne - e
+                    if head in ("G2", "G3", "G02", "G03"):
+                        xy = _arc_length(lineno, raw, self, x, y, nx, ny, w, unit, head[-1] == "2")
+                        length = math.hypot(xy, mz)
+                    else:
+                        length = math.sqrt(mx * mx + my * my + mz * mz)
+                    x, y, z, e = nx, ny, nz, ne
+                    if length <= 0.0:
+                        if me == 0.0:
+                            continue
+                        length = abs(me)
+                        kind = OTHER
+                    elif me > 0.0:
+                        kind = EXTRUDE
+                        if not use_markers and z > top_z + 1e-6:
+                            top_z = z
+                            z_layers += 1
+                            layer = z_layers - 1
+                    elif mx != 0.0 or my != 0.0 or head in ("G2", "G3", "G02", "G03"):
+                        kind = TRAVEL
+                    else:
+                        kind = OTHER
+                    dx.append(mx)
+                    dy.append(my)
+                    dz.append(mz)
+                    de.append(me)
+                    ln_.append(length)
                     fd.append(feed)
-                    dw.append(seconds)
-                    mo.append(DWELL)
+                    dw.append(0.0)
+                    mo.append(kind)
                     ft.append(feature)
                     ly.append(layer)
                     li.append(len(self.limit_sets) - 1)
                     no.append(lineno)
-            elif head == "G92":
-                w = self._words(lineno, raw, body)
-                if not w:
-                    x = y = z = e = 0.0
-                x = w["X"] * unit if "X" in w else x
-                y = w["Y"] * unit if "Y" in w else y
-                z = w["Z"] * unit if "Z" in w else z
-                e = w["E"] * unit if "E" in w else e
-            elif head == "G28":
-                named = {t[0].upper() for t in body.split()[1:]} & {"X", "Y", "Z"}
-                x = 0.0 if not named or "X" in named else x
-                y = 0.0 if not named or "Y" in named else y
-                z = 0.0 if not named or "Z" in named else z
-            elif head == "G90":
-                rel_xyz = False
-                rel_e = False
-            elif head == "G91":
-                rel_xyz = True
-                rel_e = True
-            elif head == "M82":
-                rel_e = False
-            elif head == "M83":
-                rel_e = True
-            elif head == "G20":
-                unit = 25.4
-            elif head == "G21":
-                unit = 1.0
-            elif head in ("M201", "M203", "M204", "M205"):
-                self._limit_command(lineno, raw, head, body)
+                elif head in ("G4", "G04"):
+                    w = self._words(lineno, raw, body)
+                    seconds = w.get("S", 0.0) + w.get("P", 0.0) / 1000.0
+                    if seconds < 0:
+                        raise self._bad(lineno, raw, "a dwell (G4 P ms / S s) must be >= 0")
+                    if seconds > 0:
+                        dx.append(0.0)
+                        dy.append(0.0)
+                        dz.append(0.0)
+                        de.append(0.0)
+                        ln_.append(0.0)
+                        fd.append(feed)
+                        dw.append(seconds)
+                        mo.append(DWELL)
+                        ft.append(feature)
+                        ly.append(layer)
+                        li.append(len(self.limit_sets) - 1)
+                        no.append(lineno)
+                elif head == "G92":
+                    w = self._words(lineno, raw, body)
+                    if not w:
+                        x = y = z = e = 0.0
+                    x = w["X"] * unit if "X" in w else x
+                    y = w["Y"] * unit if "Y" in w else y
+                    z = w["Z"] * unit if "Z" in w else z
+                    e = w["E"] * unit if "E" in w else e
+                elif head == "G28":
+                    named = {t[0].upper() for t in body.split()[1:]} & {"X", "Y", "Z"}
+                    x = 0.0 if not named or "X" in named else x
+                    y = 0.0 if not named or "Y" in named else y
+                    z = 0.0 if not named or "Z" in named else z
+                elif head == "G90":
+                    rel_xyz = False
+                    rel_e = False
+                elif head == "G91":
+                    rel_xyz = True
+                    rel_e = True
+                elif head == "M82":
+                    rel_e = False
+                elif head == "M83":
+                    rel_e = True
+                elif head == "G20":
+                    unit = 25.4
+                elif head == "G21":
+                    unit = 1.0
+                elif head in ("M201", "M203", "M204", "M205"):
+                    self._limit_command(lineno, raw, head, body)
+        except (IndexError, ValueError, ArithmeticError) as exc:
+            # A line no rule above foresaw: still the file's fault, so name the line.
+            raise self._bad(
+                lineno,
+                lines[lineno - 1] if lineno else "",
+                f"cannot be read as G-code ({type(exc).__name__}: {exc}); fix or remove the line",
+            ) from None
 
         n = len(dx)
         layers = layer_marks if use_markers else z_layers
