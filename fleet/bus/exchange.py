@@ -340,11 +340,14 @@ class Exchange:
         admission = self._roster.admit(identity, name, msg.body["robots"], msg.body["scenario"])
         body = {"accepted": admission.accepted, "rejected": admission.rejected}
         self._router.send(identity, self._round.message(MessageKind.WELCOME, body), name)
-        if admission.refusal is not None:
-            # An agent set up for another scenario can do no good here: tell it to stop.
-            bye = self._round.message(MessageKind.BYE, {"reason": admission.refusal})
+        hosting = identity in self._roster.members
+        if not hosting:
+            # An agent that hosts nothing here (set up for another scenario, or its robots
+            # hosted already) can do no good: tell it to stop rather than wait for ever.
+            reason = admission.refusal or "none of its robots can be hosted here"
+            bye = self._round.message(MessageKind.BYE, {"reason": reason})
             self._router.send(identity, bye, name)
-        if identity in self._roster.members:
+        if hosting:
             if admission.rejected:
                 self.log.warning("exchange: agent %s may not host %s", name, admission.refused)
         else:

@@ -53,6 +53,7 @@ __all__ = [
     "GuardedSocket",
     "LINGER_MS",
     "ROUTING_ID_MAX",
+    "ROUTER_RECEIVE_QUEUE",
 ]
 
 #: How long a closed socket keeps trying to deliver queued messages (e.g. a final BYE).
@@ -60,6 +61,9 @@ LINGER_MS = 1000
 
 #: Longest routing id ZeroMQ accepts (bytes); an agent's name, UTF-8 encoded, is its routing id.
 ROUTING_ID_MAX = 255
+
+#: Unread messages the exchange's ROUTER queues per connection (ZeroMQ's ``RCVHWM``).
+ROUTER_RECEIVE_QUEUE = 100
 
 _ALLOWED = "use 'inproc://<name>', 'ipc://<path>' or 'tcp://<host>:<port>'"
 # sockaddr_un.sun_path holds 108 bytes including the terminating NUL.
@@ -226,6 +230,10 @@ def bind_router(
     sock.setsockopt(zmq.ROUTER_MANDATORY, 1)
     sock.setsockopt(zmq.ROUTER_HANDOVER, 1)
     sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)
+    # A peer flooding the exchange fills its own send queue, not the engine's memory: past
+    # this many unread messages ZeroMQ stops reading its connection (agents in lockstep have
+    # one ACT and a few heartbeats outstanding at most).
+    sock.setsockopt(zmq.RCVHWM, ROUTER_RECEIVE_QUEUE)
     if parsed.ipv6:
         # Without it libzmq resolves only IPv4 and binding '[::1]' fails with "No such device".
         sock.setsockopt(zmq.IPV6, 1)
