@@ -2,9 +2,10 @@
 
 `schema` is the versioned wire format, `transport` the address checks and sockets, `exchange`
 the engine's side (`Exchange`: one OBSERVE/ACT round trip per control tick, with `roster` for
-who is connected, `lockstep` for one round, `answers` for the valid parts of the ACTs and
-`router` for its socket) and `agent` the robots' side (`AgentHost`: wraps the controllers of
-the robots it hosts, with `link` for its socket and `responder` for calling the controllers).
+who is connected, `lockstep` for one round, `answers` for the valid parts of the ACTs,
+`router` for its socket and `ledger` for what each peer sent that was refused) and `agent`
+the robots' side (`AgentHost`: wraps the controllers of the robots it hosts, with `link` for
+its socket and `responder` for calling the controllers).
 The same classes work in one process over ``inproc://`` (pumped synchronously,
 deterministic) and across processes over ``ipc://`` and ``tcp://``. Besides commands, the bus
 carries the contract net (job announcements, bids, handbacks) and liveness (heartbeats;

@@ -340,22 +340,18 @@ class Exchange:
         admission = self._roster.admit(identity, name, msg.body["robots"], msg.body["scenario"])
         body = {"accepted": admission.accepted, "rejected": admission.rejected}
         self._router.send(identity, self._round.message(MessageKind.WELCOME, body), name)
-        hosting = identity in self._roster.members
-        if not hosting:
-            # An agent that hosts nothing here (set up for another scenario, or its robots
-            # hosted already) can do no good: tell it to stop rather than wait for ever.
-            reason = admission.refusal or "none of its robots can be hosted here"
-            bye = self._round.message(MessageKind.BYE, {"reason": reason})
-            self._router.send(identity, bye, name)
-        if hosting:
+        if identity in self._roster.members:
             if admission.rejected:
                 self.log.warning("exchange: agent %s may not host %s", name, admission.refused)
-        else:
-            # Nothing of it accepted: logged (once at warning level) and counted by the
-            # ledger, which cuts off a peer that keeps saying such HELLOs.
-            claimed = len(msg.body["robots"])
-            why = f"HELLO refused ({claimed} robots claimed): {admission.refused or 'none'}"
-            self._router.ledger.charge(identity, f"peer {name!r}", Junk.REFUSED, why)
+            return
+        # An agent that hosts nothing here (set up for another scenario, or its robots hosted
+        # already) can do no good: told to stop rather than wait for ever. The ledger logs it
+        # (once per peer at warning level) and cuts off a peer that keeps saying such HELLOs.
+        reason = admission.refusal or "none of its robots can be hosted here"
+        self._router.send(identity, self._round.message(MessageKind.BYE, {"reason": reason}), name)
+        claimed = len(msg.body["robots"])
+        why = f"HELLO refused ({claimed} robots claimed): {admission.refused or 'none'}"
+        self._router.ledger.charge(identity, f"peer {name!r}", Junk.REFUSED, why)
 
     def _cut_off(self, member: Member) -> None:
         """A known agent sent junk until cut off: it is lost, its robots unhosted."""

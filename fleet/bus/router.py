@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import zmq
 
-from fleet.bus.ledger import Junk, PeerLedger
+from fleet.bus.ledger import CUT_OFF_AFTER, Junk, PeerLedger
 from fleet.bus.roster import Member, Roster
 from fleet.bus.schema import MAX_MESSAGE_BYTES, Message, MessageKind, decode
 from fleet.bus.transport import bind_router
@@ -94,7 +94,7 @@ class Router:
         stats: dict[str, int],
         log: logging.Logger,
         max_message_bytes: int = MAX_MESSAGE_BYTES,
-        cut_off_after: int = 100,
+        cut_off_after: int = CUT_OFF_AFTER,
     ) -> None:
         self.stats = stats
         self.log = log

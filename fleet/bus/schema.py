@@ -15,7 +15,9 @@ and a handback ``[robot, job, reason]``. Every field is always present (``null``
 dataclass holds None), so a message either matches the schema exactly or is rejected. Numbers
 are finite; ids (robots, jobs, senders) are non-empty strings; ticks, ``queued``, cap values,
 ``print_s``, bid estimates and solve times are >= 0, a neighbour's radius > 0, speed-cap
-pieces sorted and non-overlapping, and a HELLO's (WELCOME's) robots unique.
+pieces sorted and non-overlapping, and a HELLO's (WELCOME's) robots unique. Sizes are bounded:
+a frame by `MAX_MESSAGE_BYTES` (or the ``max_bytes`` given to `decode`), arrays and strings by
+the other ``MAX_*`` constants below.
 
 History: version 2 added ``speed_caps`` and ``solve``, version 3 ``print_end_s``; version 4
 (contract net and liveness) added the observation's ``priority``, ``blockers`` and ``queued``,
