@@ -502,7 +502,8 @@ def cmd_inprocess(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     tally = fuzz_in_process(args.messages, args.seed, _progress(args.messages))
     elapsed = time.perf_counter() - start
-    print(f"\r{' ' * 40}\r", end="")
+    if sys.stdout.isatty():
+        print(f"\r{' ' * 40}\r", end="")
     head = ("category", "frames", "accepted", "rejected", "crash", "median us", "max ms")
     print("{:<12} {:>8} {:>9} {:>9} {:>6} {:>10} {:>8}".format(*head))
     for category, _ in Generator.CATEGORIES:
