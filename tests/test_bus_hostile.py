@@ -247,6 +247,10 @@ def test_a_served_run_attacked_over_tcp_keeps_its_digest_and_jobs(tmp_path):
     counters = fuzz_bus.bus_of(loud.summary)
     assert counters["messages_rejected"] + counters["messages_ignored"] > 400
     assert "Traceback" not in loud.stderr
+    # `fleet serve` tells its operator who joined (at info level), and each refusal kind once.
+    assert quiet.stderr.count(" joined, hosting ") == 2
+    connections = fuzz_bus.parser().get_default("connections")
+    assert loud.stderr.count(" (malformed): ") == connections
 
 
 def test_faults_sample_an_agent_killed_and_one_paused_leave_every_job_accounted(capsys):
