@@ -770,8 +770,10 @@ def served_run(
     return served, info
 
 
-def cmd_sockets(args: argparse.Namespace) -> int:
-    common = [
+def run_options(args: argparse.Namespace) -> list[str]:
+    """The scenario and the options `fleet serve` takes from the harness's own (an agent
+    takes the first three)."""
+    return [
         str(FLEET_TOML),
         "--robots",
         str(args.robots),
@@ -780,6 +782,10 @@ def cmd_sockets(args: argparse.Namespace) -> int:
         "--seed",
         str(args.seed),
     ]
+
+
+def cmd_sockets(args: argparse.Namespace) -> int:
+    common = run_options(args)
     with tempfile.TemporaryDirectory(prefix="fuzz-bus-") as tmp:
         print(f"socket fuzz: fleet.toml, {args.robots} robots, {args.duration:g} s, two agents")
         quiet, _ = served_run(Path(tmp), "undisturbed", common)
@@ -817,15 +823,7 @@ def cmd_sockets(args: argparse.Namespace) -> int:
 
 
 def cmd_faults(args: argparse.Namespace) -> int:
-    common = [
-        str(FLEET_TOML),
-        "--robots",
-        str(args.robots),
-        "--duration",
-        str(args.duration),
-        "--seed",
-        str(args.seed),
-    ]
+    common = run_options(args)
     shares = ("1/3", "2/3", "3/3")
     with tempfile.TemporaryDirectory(prefix="fuzz-bus-") as tmp:
         address = f"tcp://127.0.0.1:{free_port()}"
