@@ -10,12 +10,14 @@ only for type checking are left out, since they never run). The rules:
 - every package says its one job in its ``__init__`` docstring;
 - no class spans more than `MAX_CLASS_LINES` lines, and `fleet/engine/world.py` (the SimPy loop
   and the wiring) stays under 500 lines;
-- fleet/ keeps only cli, errors and highs beside its rooms.
+- fleet/ keeps only cli, errors and highs beside its rooms;
+- every package on disk is listed in pyproject, and every data file inside one is package data.
 """
 
 from __future__ import annotations
 
 import ast
+import fnmatch
 import tomllib
 from pathlib import Path
 
@@ -202,3 +204,28 @@ def test_every_package_on_disk_is_one_the_distribution_ships():
     )
     on_disk = {m for m, p in MODULES.items() if p.name == "__init__.py"}
     assert listed == on_disk
+
+
+def test_every_data_file_in_a_package_ships_with_it():
+    # A wheel carries only the files package-data names: a page template left out would be
+    # missed by no test run from the source tree, only by users.
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {name: ROOT / path for name, path in setuptools["package-dir"].items()}
+    data = setuptools.get("package-data", {})
+    missing = []
+    for package in setuptools["packages"]:
+        top, *rest = package.split(".")
+        folder = folders[top].joinpath(*rest)
+        for path in folder.rglob("*"):
+            inner = path.relative_to(folder)
+            if not path.is_file() or path.suffix in {".py", ".pyc"} or "__pycache__" in inner.parts:
+                continue
+            owned = any(
+                (folder / sub).is_dir() and (folder / sub / "__init__.py").is_file()
+                for sub in [Path(*inner.parts[:i]) for i in range(1, len(inner.parts))]
+            )
+            if owned:
+                continue  # a subpackage's file: judged with that package
+            if not any(fnmatch.fnmatch(inner.as_posix(), g) for g in data.get(package, [])):
+                missing.append(f"{package}: {inner.as_posix()}")
+    assert not missing, f"not in [tool.setuptools.package-data]: {missing}"

@@ -1,26 +1,31 @@
 """The HTML replay of a finished run: one self-contained file that animates the fleet.
 
-`write_replay` reads a run directory (never re-running anything) and writes one HTML file with
-inline CSS and JavaScript and the run's data embedded as JSON (``<script
-type="application/json" id="replay-data">``). It needs no server and fetches nothing: no URL
-appears in the page, so it works offline and from ``file://``.
+The page is a template, a style sheet and a script shipped beside this module
+(``replay_page/replay.html``, ``replay.css``, ``replay.js``). `write_replay` reads a run
+directory (never re-running anything) and writes one HTML file with that CSS and JavaScript
+inlined and the run's data embedded as JSON (``<script type="application/json"
+id="replay-data">``). It needs no server and fetches nothing: no URL appears in the page, so it
+works offline and from ``file://``.
 
-The page draws the floor on a canvas (speed zones in the colours of
-`fleet.view.figures.zone_colours`, obstacles, the clearance band, rough floor, labelled stations),
-each robot as a filled circle of its radius in its own colour with a velocity tick, its planned
-horizon (``plans.csv``) as a thin dashed line, and its job state (idle, to station, printing,
-arrived and waiting for the print) as a ring and a label. A side panel holds the legend, the robots
-and the jobs (open, assigned, delivered with the outcome). Controls: a time slider, play/pause, a
-speed select (1x, 10x, 60x) and the current time.
+The page fills its window: the floor canvas takes the space left of the side panel and above
+the controls, at the largest scale that shows the whole floor. It draws speed zones in the
+colours of `fleet.view.figures.zone_colours`, obstacles, the clearance band, rough floor,
+labelled stations and a scale bar; each robot as a filled circle of its radius in its own
+colour with a velocity tick, its planned horizon (``plans.csv``) as a thin dashed line, and its
+job state (idle, to station, printing, arrived and waiting for the print) as a ring and a label.
+Labels never overlap: each is tried at several places around its robot, robots close together
+share one label, and a label with no free place is shortened, then left out. The side panel
+holds the robots and the jobs with their state at the current time, and the legend. Controls:
+play/pause, a speed select, a time slider and the current time.
 
-Seeking is scriptable: the page reads ``#t=SECONDS`` from its URL at load and on every hash
-change, and exposes ``window.replaySeek(t)``.
-
-Geometry is deterministic so tests can check pixels: the canvas sits at the page's top-left
-corner (body margin 0) at its pixel size (no CSS scaling), and `view_transform` gives the
-world-to-pixel map the page uses. Positions between two embedded samples are interpolated
-linearly; samples are thinned by `simplify` so that this interpolation stays within a
-tolerance (1 cm by default) of every recorded sample.
+The page is scriptable, for tests and for people: it reads ``#t=SECONDS`` from its URL at load
+and on every hash change, and exposes ``window.replaySeek(t)``, ``replayTime()``,
+``replayView()`` (the world-to-pixel map in use: `View`'s fields plus the canvas's ``left`` and
+``top`` in the page and the ``area`` it was fitted into), ``replayLabels()`` (the label
+rectangles drawn, in canvas pixels) and ``replayScaleBar()``. The map is `view_transform`
+mirrored in the script, so a test can recompute it from the area the page reports. Positions
+between two embedded samples are interpolated linearly; samples are thinned by `simplify` so
+that this interpolation stays within a tolerance (1 cm by default) of every recorded sample.
 """
 
 from __future__ import annotations
@@ -28,8 +33,10 @@ from __future__ import annotations
 import html
 import json
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +59,7 @@ __all__ = [
     "REPLAY_HTML",
     "ROBOT_COLOURS",
     "DEFAULT_RADIUS_M",
+    "VIEW_MARGIN_PX",
     "View",
     "Plan",
     "view_transform",
@@ -60,6 +68,7 @@ __all__ = [
     "load_plans",
     "replay_data",
     "replay_html",
+    "page_part",
     "write_replay",
 ]
 
@@ -80,11 +89,16 @@ ROBOT_COLOURS: tuple[str, ...] = (
 )
 #: Robot radius (m) drawn when neither the summary nor the map gives one.
 DEFAULT_RADIUS_M = 0.4
+#: Pixels the page keeps free around the floor (`view_transform`'s default, sent to the page).
+VIEW_MARGIN_PX = 20
 
 _PLAN_COLUMNS = ("t_sent", "robot", "k", "t", "x", "y")
 _OBSTACLE_COLOUR = "#6b0f0f"
 _CLEARANCE_COLOUR = "#cfcfcf"
 _STATION_COLOUR = "#1f3b73"
+#: The page's parts, package data beside this module; the template names the others.
+_PAGE_DIR = "replay_page"
+_SLOTS = re.compile(r"@(TITLE|CSS|SCRIPT|DATA)@")
 
 
 @dataclass(frozen=True)
@@ -92,7 +106,7 @@ class View:
     """The page's world-to-canvas map: pixel ``(x0 + scale * x, y0 - scale * y)``.
 
     Canvas pixel ``(col, row)`` covers ``[col, col + 1) x [row, row + 1)`` of that map; the
-    canvas is `width` x `height` pixels at the page's top-left corner.
+    canvas is `width` x `height` CSS pixels (the page reports where it sits, `replayView`).
     """
 
     scale: float
@@ -122,13 +136,15 @@ def view_transform(
     *,
     width: int = 1000,
     height: int = 700,
-    margin: int = 20,
+    margin: int = VIEW_MARGIN_PX,
 ) -> View:
     """Fit a floor's `bounds` ``(xmin, ymin, xmax, ymax)`` into `width` x `height` pixels.
 
     The floor keeps its aspect (one scale for both axes) with `margin` pixels on every side; the
     canvas is shrunk to the fitted floor, so one of its sides equals the given size and the
-    other may be smaller. y points up in the world and down on the canvas.
+    other may be smaller. y points up in the world and down on the canvas. The page computes
+    the same map (``viewTransform`` in ``replay_page/replay.js``) for the area its window leaves
+    the canvas; keep the two alike.
 
     Raises
     ------
@@ -245,7 +261,8 @@ def replay_data(
 ) -> dict[str, Any]:
     """The JSON document the replay page embeds (plain lists and numbers only).
 
-    Keys: ``title``, ``t0``, ``t1`` (time range, s), ``view`` (`View` fields), ``floor``
+    Keys: ``title``, ``t0``, ``t1`` (time range, s), ``bounds`` (the floor's ``[xmin, ymin,
+    xmax, ymax]``, m) and ``margin`` (px) that the page fits into its window, ``floor``
     (``boundary``, ``free``, ``zones`` [{``label``, ``colour``, ``polys``}], ``obstacles``,
     ``rough``, ``stations`` [{``name``, ``kind``, ``x``, ``y``}], ``clearance``; polygons are
     lists of rings, a ring a flat ``[x0, y0, x1, y1, ...]`` list), ``kinds`` (kind -> colour),
@@ -255,7 +272,7 @@ def replay_data(
     ``print_end``, ``delivered``, ``due``, ``outcome``}] (None: not happened).
     """
     floor = run.floor
-    view = view_transform(floor.bounds)
+    view_transform(floor.bounds)  # bad bounds fail here, with a message, not in the browser
     spec = floor.spec
     colours = zone_colours(floor)
     by_limit: dict[tuple[float, float], list[BaseGeometry]] = {}
@@ -303,13 +320,8 @@ def replay_data(
         "title": run.title,
         "t0": min(times, default=0.0),
         "t1": max(run.t_end, min(times, default=0.0)),
-        "view": {
-            "scale": view.scale,
-            "x0": view.x0,
-            "y0": view.y0,
-            "width": view.width,
-            "height": view.height,
-        },
+        "bounds": [float(v) for v in floor.bounds],
+        "margin": VIEW_MARGIN_PX,
         "floor": {
             "boundary": _polys(spec.boundary),
             "free": _polys(floor.free_space),
@@ -335,7 +347,6 @@ def replay_data(
 
 def replay_html(data: Mapping[str, Any]) -> str:
     """The replay page for `data` (`replay_data`): one HTML document, no external resources."""
-    view = data["view"]
     # Escaping <, > and & keeps any string in the data from closing the script element.
     payload = (
         json.dumps(data, separators=(",", ":"), allow_nan=False)
@@ -343,14 +354,19 @@ def replay_html(data: Mapping[str, Any]) -> str:
         .replace(">", "\\u003e")
         .replace("&", "\\u0026")
     )
-    return (
-        _PAGE.replace("@TITLE@", html.escape(str(data["title"])))
-        .replace("@W@", str(view["width"]))
-        .replace("@H@", str(view["height"]))
-        .replace("@PANEL_X@", str(view["width"] + 12))
-        .replace("@DATA@", payload)
-        .replace("@SCRIPT@", _SCRIPT)
-    )
+    slots = {
+        "TITLE": html.escape(str(data["title"])),
+        "CSS": page_part("replay.css"),
+        "SCRIPT": page_part("replay.js"),
+        "DATA": payload,
+    }
+    # One pass: text put into a slot is never searched for slots again.
+    return _SLOTS.sub(lambda m: slots[m.group(1)], page_part("replay.html"))
+
+
+def page_part(name: str) -> str:
+    """The text of one of the page's files (package data in ``fleet/view/replay_page``)."""
+    return resources.files("fleet.view").joinpath(_PAGE_DIR, name).read_text(encoding="utf-8")
 
 
 def write_replay(
@@ -484,370 +500,3 @@ def _jobs(run: RunData) -> list[dict[str, Any]]:
         j["print_end"] = max(j["print_end"] or task.end_s, task.end_s)
         j["robot"] = j["robot"] or task.robot
     return sorted(story.values(), key=lambda j: (j["released"] is None, j["released"], j["id"]))
-
-
-_PAGE = """<!DOCTYPE html>
-<html lang="en">
-<head>
-<meta charset="utf-8">
-<title>replay: @TITLE@</title>
-<style>
-html, body { margin: 0; padding: 0; background: #fff; color: #222;
-  font: 12px/1.35 system-ui, -apple-system, "Segoe UI", sans-serif; }
-#floor { position: absolute; left: 0; top: 0; display: block;
-  width: @W@px; height: @H@px; }
-#controls { position: absolute; left: 0; top: @H@px; width: @W@px; box-sizing: border-box;
-  padding: 6px 20px; display: flex; gap: 10px; align-items: center; }
-#controls input[type=range] { flex: 1; }
-#time { font-variant-numeric: tabular-nums; min-width: 11em; }
-#side { position: absolute; left: @PANEL_X@px; top: 0; width: 330px; padding: 8px 0;
-  box-sizing: border-box; }
-#side h1 { font-size: 14px; margin: 0 0 6px; }
-#side h2 { font-size: 12px; margin: 10px 0 4px; text-transform: uppercase; color: #555; }
-#side ul { list-style: none; margin: 0; padding: 0; }
-#side li { margin: 1px 0; }
-.sw { display: inline-block; width: 12px; height: 12px; margin-right: 6px;
-  vertical-align: -2px; border: 1px solid #999; box-sizing: border-box; }
-.dot { border-radius: 50%; border: none; }
-table { border-collapse: collapse; width: 100%; }
-td, th { text-align: left; padding: 1px 4px; white-space: nowrap; }
-th { color: #555; font-weight: 600; }
-.st-open { color: #a15c00; } .st-assigned { color: #1f3b73; }
-.st-delivered { color: #2a7a2a; } .st-bad { color: #b00000; font-weight: 600; }
-</style>
-</head>
-<body>
-<canvas id="floor" width="@W@" height="@H@"></canvas>
-<div id="controls">
-  <button id="play" type="button">Play</button>
-  <input id="slider" type="range" step="any" aria-label="time">
-  <span id="time"></span>
-  <label>speed <select id="speed">
-    <option value="1">1x</option><option value="10" selected>10x</option>
-    <option value="60">60x</option></select></label>
-</div>
-<div id="side">
-  <h1 id="title"></h1>
-  <h2>Floor</h2><ul id="legend"></ul>
-  <h2>Robots</h2><ul id="robots"></ul>
-  <h2>Jobs</h2><table><thead><tr><th>job</th><th>part</th><th>to</th><th>robot</th>
-  <th>state</th></tr></thead><tbody id="jobs"></tbody></table>
-</div>
-<script type="application/json" id="replay-data">@DATA@</script>
-<script>
-@SCRIPT@
-</script>
-</body>
-</html>
-"""
-
-_SCRIPT = r"""(function () {
-"use strict";
-const D = JSON.parse(document.getElementById("replay-data").textContent);
-const V = D.view, F = D.floor, C = F.colours;
-const canvas = document.getElementById("floor");
-const ctx = canvas.getContext("2d");
-const slider = document.getElementById("slider");
-const playButton = document.getElementById("play");
-const speedSelect = document.getElementById("speed");
-const timeLabel = document.getElementById("time");
-const px = (x) => V.x0 + V.scale * x;
-const py = (y) => V.y0 - V.scale * y;
-
-function el(tag, attrs, text) {
-  const e = document.createElement(tag);
-  for (const k in attrs || {}) e.setAttribute(k, attrs[k]);
-  if (text !== undefined) e.textContent = text;
-  return e;
-}
-
-// -- the floor, drawn once ---------------------------------------------------------------------
-function tracePolys(g, polys) {
-  g.beginPath();
-  for (const rings of polys) {
-    for (const ring of rings) {
-      for (let i = 0; i < ring.length; i += 2) {
-        if (i === 0) g.moveTo(px(ring[i]), py(ring[i + 1]));
-        else g.lineTo(px(ring[i]), py(ring[i + 1]));
-      }
-      g.closePath();
-    }
-  }
-}
-
-function hatch() {
-  const p = document.createElement("canvas");
-  p.width = p.height = 8;
-  const g = p.getContext("2d");
-  g.strokeStyle = "rgba(80,80,80,0.7)";
-  g.lineWidth = 1;
-  g.beginPath(); g.moveTo(0, 8); g.lineTo(8, 0); g.moveTo(-2, 2); g.lineTo(2, -2);
-  g.moveTo(6, 10); g.lineTo(10, 6); g.stroke();
-  return p;
-}
-
-const MARKERS = { depot: "square", delivery: "triangle", charger: "plus" };
-
-function marker(g, kind, x, y, r) {
-  g.beginPath();
-  const shape = MARKERS[kind] || "diamond";
-  if (shape === "square") g.rect(x - r, y - r, 2 * r, 2 * r);
-  else if (shape === "triangle") { g.moveTo(x, y - r * 1.2); g.lineTo(x + r * 1.1, y + r * 0.8);
-    g.lineTo(x - r * 1.1, y + r * 0.8); g.closePath(); }
-  else if (shape === "plus") { const a = r * 0.4; g.moveTo(x - a, y - r); g.lineTo(x + a, y - r);
-    g.lineTo(x + a, y - a); g.lineTo(x + r, y - a); g.lineTo(x + r, y + a); g.lineTo(x + a, y + a);
-    g.lineTo(x + a, y + r); g.lineTo(x - a, y + r); g.lineTo(x - a, y + a); g.lineTo(x - r, y + a);
-    g.lineTo(x - r, y - a); g.lineTo(x - a, y - a); g.closePath(); }
-  else { g.moveTo(x, y - r); g.lineTo(x + r, y); g.lineTo(x, y + r); g.lineTo(x - r, y);
-    g.closePath(); }
-}
-
-function drawFloor(g) {
-  g.fillStyle = "#ffffff";
-  g.fillRect(0, 0, V.width, V.height);
-  // Grey under white free space: what shows grey is the band the robot's centre may not enter.
-  tracePolys(g, F.boundary); g.fillStyle = C.clearance; g.fill("evenodd");
-  tracePolys(g, F.free); g.fillStyle = "#ffffff"; g.fill("evenodd");
-  for (const z of F.zones) { tracePolys(g, z.polys); g.fillStyle = z.colour; g.fill("evenodd"); }
-  if (F.rough.length) {
-    tracePolys(g, F.rough); g.fillStyle = g.createPattern(hatch(), "repeat"); g.fill("evenodd");
-  }
-  tracePolys(g, F.obstacles); g.fillStyle = C.obstacle; g.fill("evenodd");
-  tracePolys(g, F.boundary); g.strokeStyle = "#000"; g.lineWidth = 1.2; g.stroke();
-  g.font = "10px sans-serif"; g.textBaseline = "bottom";
-  for (const s of F.stations) {
-    const x = px(s.x), y = py(s.y);
-    marker(g, s.kind, x, y, 4); g.fillStyle = C.station; g.fill();
-    g.strokeStyle = "#fff"; g.lineWidth = 0.8; g.stroke();
-    g.fillStyle = C.station; g.fillText(s.name, x + 6, y - 3);
-  }
-}
-
-const background = document.createElement("canvas");
-background.width = V.width; background.height = V.height;
-drawFloor(background.getContext("2d"));
-
-// -- where things are at time t ----------------------------------------------------------------
-function bisect(a, t) {  // last i with a[i] <= t (-1 if none)
-  let lo = 0, hi = a.length;
-  while (lo < hi) { const mid = (lo + hi) >> 1; if (a[mid] <= t) lo = mid + 1; else hi = mid; }
-  return lo - 1;
-}
-
-function positionAt(r, t) {
-  const n = r.t.length;
-  if (n === 0) return null;
-  const i = bisect(r.t, t);
-  if (i < 0) return { x: r.x[0], y: r.y[0], vx: 0, vy: 0 };
-  if (i >= n - 1) return { x: r.x[n - 1], y: r.y[n - 1], vx: 0, vy: 0 };
-  const dt = r.t[i + 1] - r.t[i];
-  const f = dt > 0 ? (t - r.t[i]) / dt : 1;
-  const vx = dt > 0 ? (r.x[i + 1] - r.x[i]) / dt : 0, vy = dt > 0 ? (r.y[i + 1] - r.y[i]) / dt : 0;
-  return { x: r.x[i] + f * (r.x[i + 1] - r.x[i]), y: r.y[i] + f * (r.y[i + 1] - r.y[i]), vx, vy };
-}
-
-for (const r of D.robots) {
-  r.jobs = D.jobs.filter((j) => j.robot === r.id && j.assigned !== null);
-}
-
-function stateAt(r, t) {
-  const job = r.jobs.find((j) => j.assigned <= t && (j.delivered === null || t < j.delivered));
-  if (!job) return { key: "idle", text: "idle", ring: null };
-  const to = job.station || "station";
-  const task = r.tasks.find((k) => k[0] <= t && t < k[1]);
-  const kind = task ? task[2] : null;
-  const kindColour = kind ? (D.kinds[kind] || D.kinds.other) : null;
-  if (job.arrived !== null && job.arrived <= t) {
-    if (job.print_end !== null && t < job.print_end) {
-      const what = kind ? " (" + kind + ")" : "";
-      return { key: "waiting", text: "at " + to + ", waiting for print" + what,
-        ring: kindColour || "#b8860b" };
-    }
-    return { key: "arrived", text: "at " + to, ring: "#555555" };
-  }
-  if (task) return { key: "printing", text: "printing " + kind + ", to " + to, ring: kindColour };
-  return { key: "to", text: "to " + to, ring: C.station };
-}
-
-function planAt(r, t) {
-  const i = bisect(r.plans.sent, t);
-  return i < 0 ? null : r.plans.pts[i];
-}
-
-// -- drawing a frame ---------------------------------------------------------------------------
-function drawFrame(t) {
-  ctx.drawImage(background, 0, 0);
-  const now = D.robots.map((r) => ({ r, p: positionAt(r, t), s: stateAt(r, t) }));
-  // Planned horizons first: robots are drawn over them.
-  ctx.lineWidth = 1.5;
-  ctx.setLineDash([5, 3]);
-  for (const { r, p } of now) {
-    const pts = p && planAt(r, t);
-    if (!pts) continue;
-    ctx.beginPath();
-    ctx.moveTo(px(p.x), py(p.y));
-    let ahead = 0;
-    for (let i = 0; i < pts.length; i += 3) {
-      if (pts[i] <= t) continue;  // the part of the plan already lived through
-      ctx.lineTo(px(pts[i + 1]), py(pts[i + 2]));
-      ahead++;
-    }
-    if (ahead) { ctx.strokeStyle = r.colour; ctx.stroke(); }
-  }
-  ctx.setLineDash([]);
-  for (const { r, p, s } of now) {
-    if (!p) continue;
-    const x = px(p.x), y = py(p.y), rad = Math.max(r.radius * V.scale, 4);
-    ctx.beginPath(); ctx.arc(x, y, rad, 0, 2 * Math.PI);
-    ctx.fillStyle = r.colour; ctx.fill();
-    ctx.strokeStyle = "#ffffff"; ctx.lineWidth = 1; ctx.stroke();
-    if (s.ring) {
-      ctx.beginPath(); ctx.arc(x, y, rad + 2.5, 0, 2 * Math.PI);
-      ctx.strokeStyle = s.ring; ctx.lineWidth = 2; ctx.stroke();
-    }
-    const speed = Math.hypot(p.vx, p.vy);
-    if (speed > 1e-3) {  // the velocity tick starts at the rim so the disk keeps its colour
-      const ux = p.vx / speed, uy = -p.vy / speed, len = 5 + 12 * Math.min(1, speed / D.v_max);
-      ctx.beginPath();
-      ctx.moveTo(x + ux * (rad + 3.5), y + uy * (rad + 3.5));
-      ctx.lineTo(x + ux * (rad + 3.5 + len), y + uy * (rad + 3.5 + len));
-      ctx.strokeStyle = "#111111"; ctx.lineWidth = 2; ctx.stroke();
-    }
-  }
-  ctx.font = "11px sans-serif"; ctx.textBaseline = "bottom"; ctx.lineJoin = "round";
-  for (const { r, p, s } of now) {
-    if (!p) continue;
-    const rad = Math.max(r.radius * V.scale, 4), text = r.id + ": " + s.text;
-    let x = px(p.x) + rad + 5;
-    const y = py(p.y) - rad - 2;
-    const w = ctx.measureText(text).width;
-    if (x + w > V.width) x = Math.max(0, px(p.x) - rad - 5 - w);  // near the right edge: left
-    ctx.strokeStyle = "rgba(255,255,255,0.85)"; ctx.lineWidth = 3; ctx.strokeText(text, x, y);
-    ctx.fillStyle = "#111111"; ctx.fillText(text, x, y);
-  }
-  return now;
-}
-
-// -- the side panel ----------------------------------------------------------------------------
-document.getElementById("title").textContent = D.title;
-document.title = "replay: " + D.title;
-const legend = document.getElementById("legend");
-function legendItem(colour, label, round) {
-  const li = el("li");
-  const sw = el("span", { class: "sw" + (round ? " dot" : "") });
-  sw.style.background = colour;
-  li.append(sw, document.createTextNode(label));
-  legend.append(li);
-}
-for (const z of F.zones) legendItem(z.colour, "zone " + z.label);
-if (F.obstacles.length) legendItem(C.obstacle, "obstacle");
-if (F.clearance > 0) legendItem(C.clearance, "clearance (" + F.clearance + " m)");
-if (F.rough.length) legendItem("repeating-linear-gradient(135deg,#fff 0 3px,#777 3px 4px)",
-  "rough floor");
-if (F.stations.length) legendItem(C.station, "station");
-for (const k in D.kinds) legendItem(D.kinds[k], "ring: printing " + k, true);
-legendItem(C.station, "ring: to station", true);
-legendItem("#b8860b", "ring: arrived, waiting for print", true);
-
-const robotList = document.getElementById("robots");
-const robotText = D.robots.map((r) => {
-  const li = el("li");
-  const sw = el("span", { class: "sw dot" });
-  sw.style.background = r.colour;
-  const text = el("span", {}, "");
-  li.append(sw, document.createTextNode(r.id + ": "), text);
-  robotList.append(li);
-  return text;
-});
-
-const jobBody = document.getElementById("jobs");
-const jobRows = D.jobs.map((j) => {
-  const tr = el("tr");
-  const state = el("td");
-  tr.append(el("td", {}, j.id), el("td", {}, j.part || "-"), el("td", {}, j.station || "-"),
-    el("td", {}, j.robot || "-"), state);
-  jobBody.append(tr);
-  return { j, tr, state, last: null };
-});
-
-function jobState(j, t) {
-  if (j.released !== null && t < j.released) return null;
-  if (j.assigned === null || t < j.assigned) return ["open", "st-open"];
-  if (j.delivered === null || t < j.delivered) return ["assigned", "st-assigned"];
-  const late = j.due !== null && j.delivered > j.due ? ", late" : "";
-  const bad = (j.outcome && j.outcome !== "good") || late;
-  return ["delivered" + (j.outcome ? " (" + j.outcome + late + ")" : late ? " (late)" : ""),
-    bad ? "st-bad" : "st-delivered"];
-}
-
-function updatePanel(t, now) {
-  now.forEach(({ s }, i) => {
-    if (robotText[i].textContent !== s.text) robotText[i].textContent = s.text;
-  });
-  for (const row of jobRows) {
-    const st = jobState(row.j, t);
-    const key = st ? st.join("|") : "hidden";
-    if (key === row.last) continue;  // touch the DOM only when a job changes state
-    row.last = key;
-    row.tr.style.display = st ? "" : "none";
-    if (st) { row.state.textContent = st[0]; row.state.className = st[1]; }
-  }
-}
-
-// -- time --------------------------------------------------------------------------------------
-const FRAME_MS = 33;
-let current = D.t0, playing = false, lastStamp = 0, timer = null;
-slider.min = D.t0; slider.max = D.t1;
-
-function clock(t) {
-  const s = Math.floor(t), h = Math.floor(s / 3600), m = Math.floor((s % 3600) / 60);
-  const pad = (v) => String(v).padStart(2, "0");
-  return "t = " + t.toFixed(2) + " s (" + h + ":" + pad(m) + ":" + pad(s % 60) + ")";
-}
-
-function seek(t) {
-  t = Number(t);
-  if (!isFinite(t)) return current;
-  current = Math.min(D.t1, Math.max(D.t0, t));
-  slider.value = current;
-  timeLabel.textContent = clock(current);
-  updatePanel(current, drawFrame(current));
-  return current;
-}
-
-function setPlaying(on) {
-  playing = on && current < D.t1;
-  playButton.textContent = playing ? "Pause" : "Play";
-  clearTimeout(timer);
-  lastStamp = performance.now();
-  if (playing) timer = setTimeout(step, FRAME_MS);
-}
-
-// A timer rather than requestAnimationFrame: it also runs under a headless browser's virtual
-// time, where animation frames may never come.
-function step() {
-  if (!playing) return;
-  const now = performance.now();
-  seek(current + (now - lastStamp) / 1000 * Number(speedSelect.value));
-  lastStamp = now;
-  if (current >= D.t1) { setPlaying(false); return; }
-  timer = setTimeout(step, FRAME_MS);
-}
-
-function hashTime() {
-  const m = /(?:^#|&)t=([-+0-9.eE]+)/.exec(location.hash);
-  return m ? Number(m[1]) : null;
-}
-
-slider.addEventListener("input", () => seek(slider.value));
-playButton.addEventListener("click", () => setPlaying(!playing));
-window.addEventListener("hashchange", () => { const t = hashTime(); if (t !== null) seek(t); });
-document.addEventListener("keydown", (e) => {
-  if (e.key === " " && e.target === document.body) { e.preventDefault(); setPlaying(!playing); }
-});
-window.replaySeek = seek;
-window.replayTime = () => current;
-const start = hashTime();
-seek(start === null ? D.t0 : start);
-})();
-"""
