@@ -728,8 +728,10 @@ def served_run(
     common: list[str],
     attack_messages: int = 0,
     seed: int = 1,
+    waves: int = 2,
 ) -> tuple[Served, dict[str, Any]]:
-    """One served run with two agents, attacked by `attack_messages` frames if > 0."""
+    """One served run with two agents, attacked by `attack_messages` frames if > 0, sent in
+    `waves` attacks one after the other (each a process of its own)."""
     address = f"tcp://127.0.0.1:{free_port()}"
     engine = Engine(common, address, tmp / label)
     agents = [agent(common, address, "--share", share) for share in ("1/2", "2/2")]
@@ -738,9 +740,9 @@ def served_run(
         engine.wait_for_joins(len(agents))
         info["rss_kb"] = [rss_kb(engine.pid)]
         info["attacks"] = []
-        # Two waves of the same size: memory that grows by the second is a leak, memory
-        # that stays is what the first wave's queues took.
-        for wave in range(2):
+        # Waves of the same size: memory that grows by the second is a leak, memory that
+        # stays is what the first wave's queues took.
+        for wave in range(waves):
             attacker = subprocess.run(
                 [
                     sys.executable,
@@ -749,7 +751,7 @@ def served_run(
                     "--connect",
                     address,
                     "--attack",
-                    str(attack_messages // 2),
+                    str(attack_messages // waves),
                     "--seed",
                     str(seed + wave),
                 ],
