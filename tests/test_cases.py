@@ -46,10 +46,12 @@ def test_a_trip_via_a_station_where_a_robot_is_parked_is_delivered() -> None:
     assert s["jobs"]["completed"] == s["jobs"]["released"] == 1
 
 
-@pytest.mark.xfail(strict=True, reason="issue 16: a job handed back waits while robots idle")
 def test_jobs_to_one_station_are_all_delivered() -> None:
-    s = summary_of("same_station")
+    # Robots crowding the one station hand jobs back (the follower's congestion there, issue
+    # 16's liveness, costs time: the last delivery is at 277 s), so the run is the README's 900 s.
+    s = summary_of("same_station", duration=900)
     assert s["jobs"]["completed"] == s["jobs"]["released"] == 3
+    assert s["jobs"]["failed"] == 0
 
 
 @pytest.mark.xfail(
