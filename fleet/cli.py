@@ -664,6 +664,11 @@ def _simulate(
             f"(see {out / 'events.csv'})",
         )
         return EXIT_FAILED
+    if summary["stuck_robots"]:
+        # A robot that could never move makes the run's figures meaningless: not a quiet exit 0.
+        for stuck in summary["stuck_robots"]:
+            _error(errors, f"robot {stuck['robot']} could never move: {stuck['reason']}")
+        return EXIT_FAILED
     return EXIT_OK
 
 

@@ -431,7 +431,7 @@ def test_a_world_given_its_floor_keeps_its_agents_in_process():
         World(sc, floor, workers=1)
 
 
-def test_a_blocked_robot_hands_its_job_back_and_never_gets_it_again(monkeypatch):
+def test_a_blocked_robot_hands_its_job_back_and_another_robot_delivers_it(monkeypatch):
     import fleet.engine.agents as agents_module
     from fleet.plugins import Command, ControlStatus
     from fleet_plugins.follower import PathFollower

@@ -1,5 +1,6 @@
 """The path layer: collision-free fast paths; references that obey the step semantics exactly."""
 
+import functools
 import itertools
 import math
 from pathlib import Path as FilePath
@@ -7,13 +8,23 @@ from pathlib import Path as FilePath
 import numpy as np
 import pytest
 import shapely
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
-from shapely.geometry import LineString, box
+from shapely import affinity
+from shapely.geometry import LineString, Point, Polygon, box
 
 import fleet.paths.timing as timing
-from fleet.errors import NoPathError
-from fleet.floor import Floor, FloorSpec
+from fleet.errors import MapError, NoPathError
+from fleet.floor import (
+    Floor,
+    FloorSpec,
+    Obstacle,
+    SpeedZone,
+    Station,
+    compile_floor,
+    load_floor,
+)
+from fleet.floor.mapfile import grow
 from fleet.paths import Path, PathPlanner, Reference
 from fleet.paths.planner import KEY_DECIMALS
 
@@ -388,3 +399,110 @@ def test_paper_case3_route_is_found():
     ref = planner.reference((-100, -20), (0, 15), dt=0.25)
     assert_valid(floor, ref, (-100, -20), (0, 15))
     assert ref.path.length < 1.2 * math.dist((-100, -20), (0, 15))
+
+
+# -- random rotated floors (issue 16: the reference failed its self-check on one) ---------------
+@st.composite
+def rotated_floor(draw):
+    """A random floor turned by a random angle and moved far from the origin, as the fuzz's:
+    star-shaped machines with buffer zones (and rings round those) whose edges meet the
+    paths' corners at shallow angles, and two stations."""
+    w, h = draw(st.floats(14, 30)), draw(st.floats(10, 22))
+    angle = draw(st.floats(0, 180))
+    dx, dy = draw(st.floats(-200, 200)), draw(st.floats(-200, 200))
+
+    def place(geom):
+        return affinity.translate(affinity.rotate(geom, angle, origin=(0, 0)), dx, dy)
+
+    clearance = draw(st.sampled_from([0.0, 0.3, 0.4]))
+    obstacles, zones = [], []
+    for i in range(draw(st.integers(1, 6))):
+        cx, cy = draw(st.floats(2, w - 2)), draw(st.floats(2, h - 2))
+        n = draw(st.integers(3, 10))
+        angles = sorted(draw(st.lists(st.floats(0, 2 * math.pi), min_size=n, max_size=n)))
+        radii = draw(st.lists(st.floats(0.3, 3.0), min_size=n, max_size=n))
+        corners = zip(angles, radii, strict=True)
+        poly = Polygon([(cx + r * math.cos(a), cy + r * math.sin(a)) for a, r in corners])
+        if not poly.is_valid or poly.area < 0.05:
+            continue
+        obstacles.append(Obstacle(f"m{i}", place(poly)))
+        if draw(st.integers(0, 3)):
+            margin = draw(st.floats(0.3, 2.5))
+            buf = grow(poly, margin)
+            zones.append(SpeedZone(f"m{i}_buf", place(buf), (0.3, 0.3)))
+            if draw(st.booleans()):
+                ring = grow(buf, draw(st.floats(0.5, 2.0)))
+                zones.append(SpeedZone(f"m{i}_ring", place(ring), (0.6, 0.6)))
+    stations = []
+    for name in ("a", "b"):
+        x, y = draw(st.floats(1, w - 1)), draw(st.floats(1, h - 1))
+        (x, y), *_ = place(Point(x, y)).coords
+        stations.append(Station(name, x, y))
+    spec = FloorSpec(
+        source="<rotated floor>",
+        name="rotated",
+        boundary=place(box(0, 0, w, h)),
+        default_v_max=(1.0, 1.0),
+        clearance=clearance,
+        obstacles=tuple(obstacles),
+        zones=tuple(zones),
+        stations=tuple(stations),
+    )
+    try:
+        return compile_floor(spec)
+    except MapError:
+        assume(False)  # e.g. a station drawn inside a machine
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    floor=rotated_floor(),
+    dt=st.sampled_from([0.1, 0.25, 0.5, 1.0]),
+    a_max=st.sampled_from([0.25, 0.5, 1.0, 2.0]),
+)
+def test_every_reference_on_a_rotated_floor_passes_the_independent_check(floor, dt, a_max):
+    a, b = floor.station("a"), floor.station("b")
+    planner = PathPlanner(floor, 1.0, a_max)
+    try:
+        ref = planner.reference((a.x, a.y), (b.x, b.y), dt)
+    except NoPathError:
+        assume(False)  # the stations are in different parts of the floor
+    event(f"{min(len(ref.path.waypoints), 5) - 2}+ corners")
+    legs = zip(ref.path.waypoints[:-1], ref.path.waypoints[1:], strict=True)
+    slowest = min((min(planner.speed_limit(p, q) or (0.0,)) for p, q in legs), default=1.0)
+    event(f"slowest leg limit {slowest}")
+    assert_valid(floor, ref, (a.x, a.y), (b.x, b.y), a_max=a_max)
+
+
+CASE_FLOOR = FilePath(__file__).resolve().parent / "cases" / "reference_selfcheck" / "floor.toml"
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    start=st.tuples(st.integers(0, 10**6), st.lists(st.floats(0.01, 1), min_size=8, max_size=8)),
+    goal=st.tuples(st.integers(0, 10**6), st.lists(st.floats(0.01, 1), min_size=8, max_size=8)),
+    dt=st.sampled_from([0.1, 0.25, 0.5, 1.0]),
+    a_max=st.sampled_from([0.25, 0.5, 1.0, 2.0]),
+)
+def test_every_reference_on_the_case_floor_passes_the_independent_check(start, goal, dt, a_max):
+    # Paths round its nested slow zones run along their edges, where a step's chord and its
+    # leg may see a grazing zone differently (the case reference_selfcheck).
+    floor = case_floor()
+
+    def point(pick):  # a weighted mean of a (convex) region's corners lies in it
+        region, weights = pick
+        corners = np.asarray(floor.regions[region % len(floor.regions)].polygon.exterior.coords)
+        w = np.resize(weights, len(corners) - 1)
+        return tuple(w @ corners[:-1] / w.sum())
+
+    a, b = point(start), point(goal)
+    try:
+        ref = PathPlanner(floor, 1.0, a_max).reference(a, b, dt)
+    except NoPathError:
+        assume(False)
+    assert_valid(floor, ref, a, b, a_max=a_max)
+
+
+@functools.cache
+def case_floor() -> Floor:
+    return load_floor(CASE_FLOOR)

@@ -26,12 +26,16 @@ from fleet.plugins import Announcement, Assignment, Bid, DispatchContext, RobotS
 from fleet.printing import CapSchedule
 from fleet.scenario import Scenario
 
-__all__ = ["Dispatch", "REANNOUNCE_S"]
+__all__ = ["Dispatch", "HANDBACK_HOLD_S", "REANNOUNCE_S"]
 
 log = logging.getLogger("fleet.engine")
 
 #: How often (s) open jobs nobody won are announced again (auctions).
 REANNOUNCE_S = 5.0
+#: How long (s) a robot that handed a job back as blocked is not given it again, when the
+#: scenario detects no deadlocks (otherwise `Scenario.deadlock_after_s`, the time over which
+#: the block was judged).
+HANDBACK_HOLD_S = 30.0
 
 
 class Dispatch:
@@ -97,14 +101,25 @@ class Dispatch:
         idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
         if not open_jobs or not idle:
             return
-        exclude: set[str] = set()
-        for _ in range(len(self.robots)):
-            declined = self._apply_assignments(open_jobs, self.dispatcher.assign, exclude=exclude)
-            if not declined:
-                return
-            # Ask again for the jobs given to robots that had handed them back, without those.
-            exclude |= {robot for _, robot in declined}
-            open_jobs = [rec for rec, _ in declined]
+        if not self._apply_assignments(open_jobs, self.dispatcher.assign):
+            return
+        # The dispatcher paired a job with a robot that had handed that job back (it does not
+        # know who did). That robot is excluded from that job only: ask again for each job
+        # still open, oldest first and alone, without the robots that handed it back, so no
+        # job waits while a robot that may take it stands idle.
+        for rec in open_jobs:
+            if not rec.open:
+                continue
+            held = rec.held_off(self.env.now)
+            free = {
+                r.id
+                for r in self.robots.values()
+                if r.job is None and not r.faulted and r.id not in held
+            }
+            if free:
+                self._apply_assignments(
+                    [rec], self.dispatcher.assign, exclude=set(self.robots) - free
+                )
 
     def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
         """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
@@ -142,12 +157,13 @@ class Dispatch:
     def award(self, bids: list[Bid]) -> None:
         """Let the dispatcher award announced jobs from this round's bids."""
         open_jobs = {rec.job.id: rec for rec in self.jobs if rec.open}
+        t = self.env.now
         valid = [
             b
             for b in bids
             if b.job in open_jobs
-            # A robot that gave a job back does not win it again.
-            and b.robot not in open_jobs[b.job].handed_back_by
+            # A robot that gave a job back lately does not win it again yet.
+            and b.robot not in open_jobs[b.job].held_off(t)
             and b.robot in self.robots
             and not self.robots[b.robot].faulted
             and not self.robots[b.robot].queue
@@ -204,8 +220,8 @@ class Dispatch:
                 self.recorder.stats["assignments_rejected"] += 1
                 log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
                 continue
-            if robot.id in rec.handed_back_by:
-                # It gave this job back as blocked: the job waits for another robot.
+            if robot.id in rec.held_off(self.env.now):
+                # It gave this job back as blocked lately: the job goes to another robot.
                 self.recorder.stats["assignments_declined"] += 1
                 declined.append((rec, robot.id))
                 continue
@@ -225,8 +241,11 @@ class Dispatch:
         """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
 
         A print under way is lost with the hand-back: the next robot prints the part anew. A
-        robot that gave the job back because it is `blocked` is not given it again (a robot
-        whose agent failed may be, once it is back); when every robot has, the job fails.
+        robot that gave the job back because it is `blocked` is not given this job again for
+        `Scenario.deadlock_after_s` (or `HANDBACK_HOLD_S`): what blocked it may have cleared by
+        then, and it may take any other job at once. The job is offered again when that hold
+        ends. A job handed back more than `[jobs] max_handbacks` times fails, so a job nobody
+        can deliver does not loop.
         """
         t = self.env.now
         if rec is robot.job:
@@ -245,13 +264,15 @@ class Dispatch:
         rec.handbacks += 1
         if blocked:
             rec.handed_back_by.add(robot.id)
+            hold = self.scenario.deadlock_after_s or HANDBACK_HOLD_S
+            rec.held_until[robot.id] = t + hold
+            # Offer it again when the hold ends, in case nobody else took it meanwhile.
+            self.env.timeout(hold).callbacks.append(lambda _event: self.request())
         self.recorder.stats["jobs_handed_back"] += 1
         self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
-        if rec.handbacks > self.scenario.jobs.max_handbacks or rec.handed_back_by >= set(
-            self.robots
-        ):
+        if rec.handbacks > self.scenario.jobs.max_handbacks:
             rec.failed_s, rec.failure = t, reason
             self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
             log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)
-            return
+        # The robot is free (and the job open again unless it failed): offer the open jobs.
         self.request()

@@ -50,8 +50,11 @@ class JobRecord:
     quality: QualityPrediction | None = None
     #: How often robots handed the job back (blocked, or their agent failed).
     handbacks: int = 0
-    #: Robots that handed the job back: they do not win it again in an auction.
+    #: Robots that handed the job back as blocked.
     handed_back_by: set[str] = field(default_factory=set)
+    #: Each robot that handed the job back as blocked, to the time until which it is not given
+    #: the job again (`Dispatch.hand_back`): other robots are, it is not excluded from others.
+    held_until: dict[str, float] = field(default_factory=dict)
     #: When and why the job was given up (too many hand-backs); None while it is not.
     failed_s: float | None = None
     failure: str | None = None
@@ -80,6 +83,10 @@ class JobRecord:
         """Delivered after its due time."""
         due = self.job.due_s
         return due is not None and self.delivered_s is not None and self.delivered_s > due + 1e-9
+
+    def held_off(self, t: float) -> set[str]:
+        """The robots not to be given this job at time `t` (they handed it back lately)."""
+        return {robot for robot, until in self.held_until.items() if t < until}
 
     @property
     def open(self) -> bool:

@@ -80,6 +80,10 @@ class RobotState:
     best_gap: float = math.inf
     progress_s: float = 0.0
     watched_goal: tuple[float, float] | None = None
+    #: Commands it was sent while it had somewhere to go, and how many were errors (its
+    #: controller failed, or no command came): all of them means it could never move.
+    goal_commands: int = 0
+    goal_errors: int = 0
     #: Robots found blocking this one (deadlock), and until when its priority is raised.
     blockers: tuple[str, ...] = ()
     boosted_until: float = -math.inf

@@ -13,9 +13,11 @@ Output contract (extend it, never break it):
   quality {prints, outcomes {good, defective, failed}, max_error_mm},
   solver {steps, median_ms, p95_ms, max_ms, fallbacks, termination {outcome: count}, ...}
   (solve statistics reported by optimising controllers), per_robot [{id, distance_m,
-  jobs_completed, turned_rad, radius_m}], digest (sha256 of the trajectories: the same seed gives
-  the same digest); for scripted (point-to-point) runs also arrivals {robot: when it reached the
-  destination of its last trip, s, or null}.
+  jobs_completed, turned_rad, radius_m, goal_commands, goal_errors (commands sent while it had
+  somewhere to go, and how many were errors)}], stuck_robots [{robot, reason}] (robots whose
+  every such command was an error: they could never move; `fleet run` exits 1), digest (sha256
+  of the trajectories: the same seed gives the same digest); for scripted (point-to-point)
+  runs also arrivals {robot: when it reached the destination of its last trip, s, or null}.
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
   arrived, delivered).

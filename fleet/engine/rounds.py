@@ -95,6 +95,9 @@ class BusRounds:
                 robot.plan = robot.thinned_plan = ()  # braking, not following its plan
             elif cmd.status is not ControlStatus.OK:
                 self.recorder.stats[f"commands_{cmd.status.value}"] += 1
+            if obs.goal is not None:
+                robot.goal_commands += 1
+                robot.goal_errors += cmd.status is ControlStatus.ERROR
             if latency is not None:
                 delay = 0.0  # commands the engine makes itself (brakes) apply at once
                 if from_controller:

@@ -99,6 +99,8 @@ def summarise(
             "jobs_completed": r.jobs_completed,
             "turned_rad": round(r.turned_rad, 6),
             "radius_m": r.spec.radius,
+            "goal_commands": r.goal_commands,
+            "goal_errors": r.goal_errors,
         }
         for rid, r in robots.items()
     ]
@@ -148,6 +150,7 @@ def summarise(
         "solver": solver_summary(recorder.solves, recorder.stats),
         "latency": latency_summary(scenario.latency, robots.values()),
         "per_robot": per_robot,
+        "stuck_robots": stuck_robots(robots),
         "engine": {
             "bus_rounds": bus_rounds,
             "robot_steps": sum(r.tick for r in robots.values()),
@@ -168,6 +171,20 @@ def summarise(
                 last[rec.robot] = None
         summary["arrivals"] = last
     return summary
+
+
+def stuck_robots(robots: Mapping[str, RobotState]) -> list[dict[str, str]]:
+    """The robots that had somewhere to go but never got a command other than an error: such
+    a robot can never move, and `fleet run` fails the run for it."""
+    return [
+        {
+            "robot": rid,
+            "reason": f"every one of its {r.goal_errors} commands while it had somewhere to go "
+            "was an error (its controller failed, or no command came)",
+        }
+        for rid, r in robots.items()
+        if r.goal_commands > 0 and r.goal_errors == r.goal_commands
+    ]
 
 
 def task_rows(jobs: Iterable[JobRecord]) -> list[tuple[str, str, str, float, float]]:

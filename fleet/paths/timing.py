@@ -14,7 +14,7 @@ from __future__ import annotations
 __all__ = ["Timing"]
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import highspy
 import numpy as np
@@ -32,6 +32,8 @@ LP_MARGIN = 1e-7
 CALM_MAX_STEPS = 4000
 #: Rounds of adding steps to pieces the speed LP cannot cover before stopping at every corner.
 MAX_ROUNDS = 8
+#: Rounds of slowing pieces whose steps break their own chord's limit (`Timing._tightened`).
+MAX_TIGHTENINGS = 8
 
 
 class Timing:
@@ -65,29 +67,68 @@ class Timing:
         if not pieces:
             z = np.zeros((1, 2))
             return make_reference(dt, path.waypoints[:1].copy(), z, path)
+        for _ in range(MAX_TIGHTENINGS):
+            counts, sigma = self._timed(pieces, dt, path)
+            ref = self._assemble(pieces, counts, sigma, dt, path)
+            slower = self._tightened(pieces, counts, ref)
+            if slower is None:
+                break
+            pieces = slower
+        self._verify(ref)
+        return ref
+
+    def _timed(self, pieces: list[_Piece], dt: float, path: Path) -> tuple[list[int], np.ndarray]:
+        """Steps per piece and the speed of every moving step."""
         counts = self._step_counts(pieces, dt)
         for _ in range(MAX_ROUNDS):
             sigma, short = self._solve_speeds(pieces, counts, dt)
             if sigma is not None:
-                break
+                return counts, sigma
             # Pieces the LP could not cover in their steps get more steps (never fewer, so the
             # reachable coverage only grows); the stop-and-go counts end the search for sure.
             counts = [
                 n + max(1, math.ceil(gap / (p.speed * dt))) if gap > 0 else n
                 for n, gap, p in zip(counts, short, pieces, strict=True)
             ]
-        else:
-            counts = self._stop_and_go_counts(pieces, dt)
-            sigma, _ = self._solve_speeds(pieces, counts, dt)
-            if sigma is None:  # pragma: no cover - the stop-and-go counts are always feasible
-                start, goal = (tuple(path.waypoints[i].tolist()) for i in (0, -1))
-                raise FleetError(
-                    f"no safe timing found from {start} to {goal} with dt={dt} (HiGHS found "
-                    "the speed LP infeasible); please report this with the floor map"
-                )
-        ref = self._assemble(pieces, counts, sigma, dt, path)
-        self._verify(ref)
-        return ref
+        counts = self._stop_and_go_counts(pieces, dt)
+        sigma, _ = self._solve_speeds(pieces, counts, dt)
+        if sigma is None:  # pragma: no cover - the stop-and-go counts are always feasible
+            start, goal = (tuple(path.waypoints[i].tolist()) for i in (0, -1))
+            raise FleetError(
+                f"no safe timing found from {start} to {goal} with dt={dt} (HiGHS found "
+                "the speed LP infeasible); please report this with the floor map"
+            )
+        return counts, sigma
+
+    def _tightened(
+        self, pieces: list[_Piece], counts: list[int], ref: Reference
+    ) -> list[_Piece] | None:
+        """The pieces with lower speeds where a step of `ref` breaks its own chord's limit, or
+        None if none does.
+
+        A piece's limit comes from its whole leg, but a step's limit from its own chord, and
+        the two can differ where a slower region's edge grazes the leg at a corner: the overlap
+        there is rounding (under `OVERLAP_TOL` for the leg, over it for a shorter chord whose
+        direction differs in the last digits). Such a piece is driven at the chord's limit.
+        Speeds only go down, to one of the floor's finitely many limits, so this ends.
+        """
+        p, v = ref.positions, ref.velocities
+        lim, _ = self._limits.of_segments(p[:-1], p[1:])
+        over = (np.abs(v[:-1]) - lim).max(axis=1) > 0.0
+        if not over.any():
+            return None
+        piece_of = np.repeat(np.arange(len(pieces)), counts)  # steps 1.. (step 0 is at rest)
+        out = list(pieces)
+        changed = False
+        for k in np.flatnonzero(over):
+            if k == 0 or k > len(piece_of):
+                continue  # pragma: no cover - the rest steps have v = 0
+            j = int(piece_of[k - 1])
+            speed = speed_along(lim[k], out[j].u)
+            if speed < out[j].speed:
+                out[j] = replace(out[j], speed=speed)
+                changed = True
+        return out if changed else None
 
     def _pieces(self, path: Path, dt: float) -> list[_Piece]:
         """Straight pieces of constant limit: split at corners and where the limit changes."""
