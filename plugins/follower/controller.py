@@ -83,7 +83,8 @@ class PathFollower(Controller):
     **Other robots** (``obs.neighbours``; with none in sight nothing below applies). Each
     neighbour's whereabouts come from `Forecast`: on its plan or anywhere between that and its
     braking trajectory (it may brake at any tick, this one included); without a plan, within
-    one step and its braking of where it is. The gap kept is ``R = radius + neighbour.radius + margin_m``.
+    one step and its braking of where it is. The gap kept is
+    ``R = radius + neighbour.radius + margin_m``.
 
     - **yield** (rule 2): to every *higher*-priority neighbour with a plan that is not a
       blocker, the robot compares its own path over its braking time from top speed (plus the
