@@ -5,8 +5,9 @@ neighbour does now is not in the plan it sent before. At 0.5 and 1 s that step i
 0.7 m (a_max 0.5), more than the follower's margin, and followers collided
 (tests/cases/follower_coarse_period). Here small fleets of followers on an empty hall or a
 random floor, at random periods and seeds, are judged by a separation check of our own, built
-from the run directory's ``trajectories.csv`` alone: at every recorded step every pair of
-robots is at least the sum of their radii apart. Derandomized, like the other property tests.
+from the run directory's ``trajectories.csv`` alone: at every recorded step, and on the
+straight segment to the next, every pair of robots is at least the sum of their radii
+apart. Derandomized, like the other property tests.
 """
 
 from __future__ import annotations
@@ -59,28 +60,42 @@ def empty_hall(draw: st.DrawFn) -> Floor:
 def closest_pairs(
     trajectories: Path, radii: dict[str, float]
 ) -> list[tuple[float, str, str, float]]:
-    """From a ``trajectories.csv``: every (t, robot, robot, distance) closer than their radii."""
-    at: dict[str, dict[str, tuple[float, float]]] = defaultdict(dict)
+    """From a ``trajectories.csv``: every (t, robot, robot, distance) closer than their radii,
+    at a recorded step or on the way to the next (robots move on straight segments at constant
+    velocity between steps, so their offset does too: its nearest point to zero)."""
+    at: dict[float, dict[str, tuple[float, float]]] = defaultdict(dict)
     with trajectories.open(newline="") as f:
         for row in csv.DictReader(f):
-            at[row["t"]][row["robot"]] = (float(row["x"]), float(row["y"]))
+            at[float(row["t"])][row["robot"]] = (float(row["x"]), float(row["y"]))
+    times = sorted(at)
     out = []
-    for t, where in at.items():
-        for (a, pa), (b, pb) in itertools.combinations(sorted(where.items()), 2):
-            d = math.dist(pa, pb)
+    for t0, t1 in zip(times, [*times[1:], times[-1]], strict=True):
+        now, nxt = at[t0], at[t1]
+        for a, b in itertools.combinations(sorted(now), 2):
+            dx, dy = now[a][0] - now[b][0], now[a][1] - now[b][1]
+            ex, ey = dx, dy
+            if a in nxt and b in nxt:
+                ex, ey = nxt[a][0] - nxt[b][0], nxt[a][1] - nxt[b][1]
+            gx, gy = ex - dx, ey - dy
+            g2 = gx * gx + gy * gy
+            s = 0.0 if g2 == 0.0 else min(max(-(dx * gx + dy * gy) / g2, 0.0), 1.0)
+            d = math.hypot(dx + s * gx, dy + s * gy)
             if d < radii[a] + radii[b]:
-                out.append((float(t), a, b, d))
+                out.append((t0, a, b, d))
     return out
 
 
 def test_the_separation_check_sees_a_contact(tmp_path: Path) -> None:
     # The oracle itself can fail: two robots 0.5 m apart with radii 0.4 are in contact.
     path = tmp_path / "trajectories.csv"
-    path.write_text(
-        "t,robot,x,y,vx,vy,region,v_zone\n0.0,r1,1.0,1.0,0,0,0,1\n0.0,r2,1.5,1.0,0,0,0,1\n"
-    )
+    head = "t,robot,x,y,vx,vy,region,v_zone\n"
+    path.write_text(head + "0.0,r1,1.0,1.0,0,0,0,1\n0.0,r2,1.5,1.0,0,0,0,1\n")
     assert closest_pairs(path, {"r1": 0.4, "r2": 0.4}) == [(0.0, "r1", "r2", 0.5)]
     assert closest_pairs(path, {"r1": 0.2, "r2": 0.2}) == []
+    # Two robots that swap places within one step pass through each other between samples.
+    rows = ["0.0,r1,0.0,0.0", "0.0,r2,2.0,0.0", "1.0,r1,2.0,0.0", "1.0,r2,0.0,0.0"]
+    path.write_text(head + "".join(f"{r},0,0,0,1\n" for r in rows))
+    assert closest_pairs(path, {"r1": 0.4, "r2": 0.4}) == [(0.0, "r1", "r2", 0.0)]
 
 
 @settings(
