@@ -30,10 +30,7 @@ def summary_of(case: str, file: str = "scen.toml", **override: Any) -> dict[str,
     return World(scenario).run().summary
 
 
-@pytest.mark.parametrize(
-    "controller",
-    [pytest.param("follower", marks=pytest.mark.xfail(strict=True, reason=LIVENESS)), "mpc"],
-)
+@pytest.mark.parametrize("controller", ["follower", "mpc"])
 def test_an_idle_robot_parked_on_a_path_never_blocks_it_for_good(controller: str) -> None:
     s = summary_of("parked_on_path", controller=controller)
     assert s["jobs"]["completed"] == s["jobs"]["released"] == 2
@@ -71,12 +68,11 @@ def test_the_robot_on_the_case_floor_delivers_its_job() -> None:
 @pytest.mark.parametrize(
     ("file", "seed"),
     [
-        pytest.param(f, seed, marks=[] if f == "p025" else pytest.mark.xfail(
-            strict=True, reason="issue 16: the follower collides at coarse periods"))
+        (f, seed)
         for f, seeds in (("p1", (2, 4, 5)), ("p05", (4, 5)), ("p025", (4, 5)))
         for seed in seeds
     ],
-)  # fmt: skip
+)
 def test_the_follower_never_collides_at_a_period_scenarios_accept(file: str, seed: int) -> None:
     try:
         s = summary_of("follower_coarse_period", f"{file}.toml", seed=seed)

@@ -473,13 +473,35 @@ def test_forecast_interpolates_a_plan_and_holds_its_last_sample() -> None:
 def test_a_neighbour_with_a_plan_may_also_brake_at_any_tick() -> None:
     n = Neighbour("r2", 0.0, 0.0, 1.0, 0.0, plan=((5.0, 5.0, 0.0),))
     f = Forecast.of(n, 0.0, DT, A_MAX)
-    stop = braking_path(DT, DT, 0.0, 1.0, 0.0, DT, A_MAX)[-1][1]  # 1.375 m on
-    # At t = 3 s it is at x = 3 on its plan, or stopped at x = 1.375, or anywhere between.
+    # It decides in the same tick as the observer, so it may brake at once: 1.125 m on.
+    stop = braking_path(0.0, 0.0, 0.0, 1.0, 0.0, DT, A_MAX)[-1][1]
+    assert stop == pytest.approx(1.125)
+    # At t = 3 s it is at x = 3 on its plan, or stopped at x = 1.125, or anywhere between.
     assert f.at(3.0) == (3.0, 0.0)
     for x in (stop, 2.0, 3.0):
         assert f.distance(3.0, x, 0.0) == pytest.approx(0.0, abs=1e-12)
     assert f.distance(3.0, stop - 0.5, 0.0) == pytest.approx(0.5)
     assert f.distance(3.0, 3.5, 0.0) == pytest.approx(0.5)
+
+
+def test_a_neighbour_setting_off_in_the_same_tick_is_kept_a_step_further_away() -> None:
+    # At a period of 1 s a neighbour at rest, its plan "stay", may set off in this very tick:
+    # a step of a_max*dt**2 = 0.5 m per axis before its next plan shows it.
+    dt = 1.0
+    f = Forecast.of(Neighbour("r2", 2.0, 0.0, 0.0, 0.0, plan=((0.0, 2.0, 0.0),)), 0.0, dt, A_MAX)
+    assert f.lead == pytest.approx(math.sqrt(2.0) * A_MAX * dt * dt)
+    towards = [(1.0, 0.0, 0.0), (2.0, 0.5, 0.0)]  # one step towards it, then at rest
+    away = [(1.0, 0.0, 0.0), (2.0, -0.5, 0.0)]
+    # 1.5 m apart after the step: more than the gap (0.9 m), less than the gap plus the lead.
+    assert f.lead > 1.5 - GAP
+    assert not stops_clear(towards, [f], RADIUS, MARGIN, (0.0, 0.0, 0.0))
+    assert stops_clear(away, [f], RADIUS, MARGIN, (0.0, 0.0, 0.0))
+    # Farther off the same step is clear; at a period of 0.25 s the lead is 4 cm.
+    far = Forecast.of(Neighbour("r2", 3.0, 0.0, 0.0, 0.0, plan=((0.0, 3.0, 0.0),)), 0.0, dt, A_MAX)
+    assert stops_clear(towards, [far], RADIUS, MARGIN, (0.0, 0.0, 0.0))
+    fine = Forecast.of(Neighbour("r2", 2.0, 0.0, 0.0, 0.0, plan=((0.0, 2.0, 0.0),)), 0.0, DT, A_MAX)
+    assert fine.lead < 0.05
+    assert stops_clear(towards, [fine], RADIUS, MARGIN, (0.0, 0.0, 0.0))
 
 
 def test_forecast_without_a_plan_covers_one_step_and_its_braking() -> None:
@@ -493,8 +515,10 @@ def test_forecast_without_a_plan_covers_one_step_and_its_braking() -> None:
 
 def test_stops_clear_needs_more_than_the_gap_at_every_sample() -> None:
     f = Forecast.of(Neighbour("r2", 2.0, 0.0, 0.0, 0.0, plan=((0.0, 2.0, 0.0),)), 0.0, DT, A_MAX)
-    far = [(0.25, 1.0, -1.0), (0.5, 2.0 - GAP - 0.01, 0.0)]
-    near = [(0.25, 1.0, -1.0), (0.5, 2.0 - GAP + 0.01, 0.0)]
+    # The gap and the step it may take in this same tick.
+    need = GAP + f.lead
+    far = [(0.25, 1.0, -1.0), (0.5, 2.0 - need - 0.01, 0.0)]
+    near = [(0.25, 1.0, -1.0), (0.5, 2.0 - need + 0.01, 0.0)]
     assert stops_clear(far, [f], RADIUS, MARGIN, (0.0, 0.0, 0.0))
     assert not stops_clear(near, [f], RADIUS, MARGIN, (0.0, 0.0, 0.0))
 

@@ -29,7 +29,8 @@ MAX_NEIGHBOURS = 8
 #: A robot that got no closer to its goal than this (m) over `Scenario.deadlock_after_s` has
 #: made no progress.
 PROGRESS_M = 0.25
-#: Robots closer than the sum of their radii plus this (m) to a stalled robot may block it.
+#: Robots closer than the sum of their radii plus this (m), plus the stalled robot's
+#: sqrt(2)*a_max*period**2, to a stalled robot may block it.
 BLOCKING_GAP_M = 1.0
 #: How long (s) a plan stays news: a neighbour whose latest plan ended longer ago than this is
 #: shown without one (assume it stays where it is).
@@ -131,12 +132,15 @@ class Sensing:
             return
         if t - r.progress_s < after - 1e-9:
             return
-        # Robots standing on this one's goal are no deadlock: it waits its turn there.
+        # Robots standing on this one's goal are no deadlock: it waits its turn there. At a
+        # coarse period robots stand further off (a step of a_max*dt**2 per axis that a
+        # neighbour may take unseen is kept clear of): such a stand-off counts too.
+        reach = BLOCKING_GAP_M + math.sqrt(2.0) * r.spec.a_max * r.spec.period**2
         blockers = tuple(
             o.id
             for o in self.robots.values()
             if o is not r
-            and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + BLOCKING_GAP_M
+            and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + reach
             and math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
         )
         if blockers and not r.blockers:

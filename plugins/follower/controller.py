@@ -82,8 +82,9 @@ class PathFollower(Controller):
 
     **Other robots** (``obs.neighbours``; with none in sight nothing below applies). Each
     neighbour's whereabouts come from `Forecast`: on its plan or anywhere between that and its
-    braking trajectory (it may brake at any tick); without a plan, within one step and its
-    braking of where it is. The gap kept is ``R = radius + neighbour.radius + margin_m``.
+    braking trajectory (it may brake at any tick, this one included); without a plan, within
+    one step and its braking of where it is. The gap kept is
+    ``R = radius + neighbour.radius + margin_m``.
 
     - **yield** (rule 2): to every *higher*-priority neighbour with a plan that is not a
       blocker, the robot compares its own path over its braking time from top speed (plus the
@@ -94,7 +95,8 @@ class PathFollower(Controller):
       check applies, so two robots never wait for each other.
     - **stopping check** (rule 1, every neighbour): the tracking command is sent only if, after
       it, full braking along the line of travel (`braking_path` from the next state), and then
-      standing where that stops for `yield_s` more, keeps more than R from every neighbour's
+      standing where that stops for `yield_s` more, keeps more than R, plus the step a
+      neighbour may take in this same tick (`Forecast.lead`), from every neighbour's
       forecast (`stops_clear`); otherwise the robot brakes (and drops its reference, so it
       comes to rest and plans again), or stays at rest. A neighbour already closer than R (two
       robots set off in the same tick) may not be approached at all, only moved away from or

@@ -81,10 +81,12 @@ class Forecast:
 
     Build it with `Forecast.of`. `samples` is the neighbour's plan from its current position on
     (empty without a plan); `brake` is where it would be if it braked now instead, from its
-    next position on (a robot may give up its plan at any tick and brake, as this layer does;
+    position now on (a robot may give up its plan at any tick and brake, as this layer does;
     starting later, it lies between the two). A neighbour without a plan lies anywhere on the
     segment `reach` (``(x0, y0, x1, y1)``: from its position to where one more step and then
-    braking take it) grown by `slack` metres.
+    braking take it) grown by `slack` metres. One with a plan decides in the same tick as the
+    observer, and the command it sends then can take it `lead` metres off what it planned
+    before the observer sees the new plan (`stops_clear` adds it to the gap).
     """
 
     robot: str
@@ -96,6 +98,7 @@ class Forecast:
     brake: tuple[Sample, ...] = ()
     reach: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     slack: float = 0.0
+    lead: float = 0.0
 
     @classmethod
     def of(cls, n: Neighbour, t: float, dt: float, a_max: float) -> Forecast:
@@ -103,14 +106,19 @@ class Forecast:
         acceleration bound `a_max` (the neighbour's own are unknown; the fleet's usually
         match)."""
         brake = braking_path(t + dt, n.x + dt * n.vx, n.y + dt * n.vy, n.vx, n.vy, dt, a_max)
+        # One step of unknown acceleration moves a robot at most a_max*dt**2 per axis further.
+        slack = math.sqrt(2.0) * a_max * dt * dt
         if n.plan:
-            # Its plan from where it is now (a plan that has ended holds it where it is).
+            # Its plan from where it is now (a plan that has ended holds it where it is). The
+            # command it sends in this same tick (setting off from rest, say) is not in that
+            # plan yet: `lead`.
             future = [(float(a), float(b), float(c)) for a, b, c in n.plan if a > t + 1e-9]
             samples = ((t, n.x, n.y), *future)
-            return cls(n.robot, n.radius, n.priority, n.x, n.y, samples, tuple(brake))
-        # No plan: one more step at its velocity, then braking (it brakes too); one step of
-        # unknown acceleration moves it at most a_max*dt**2 per axis further.
-        slack = math.sqrt(2.0) * a_max * dt * dt
+            # It may brake in this same tick too: braking from the next tick on instead ends
+            # one step further, and a robot behind it counting on that came too close.
+            now = braking_path(t, n.x, n.y, n.vx, n.vy, dt, a_max)
+            return cls(n.robot, n.radius, n.priority, n.x, n.y, samples, tuple(now), lead=slack)
+        # No plan: one more step at its velocity, then braking (it brakes too), plus the slack.
         reach = (n.x, n.y, brake[-1][1], brake[-1][2])
         return cls(n.robot, n.radius, n.priority, n.x, n.y, (), (), reach, slack)
 
@@ -146,9 +154,13 @@ def stops_clear(
 ) -> bool:
     """Rule 1: whether braking trajectory `path` keeps clear of every neighbour.
 
-    Clear means more than ``radius + n.radius + margin`` (or ``gaps[n.robot]``, for robots the
-    caller routes round) from each forecast at every sample. A neighbour already closer than
-    that (robots start close, or two set off in the same tick) is kept from coming any closer:
+    Clear means more than ``radius + n.radius + margin`` plus the neighbour's `Forecast.lead`
+    (or ``gaps[n.robot]``, for lower-priority robots the caller routes round) from each forecast
+    at every sample: the neighbour's command of this tick is not in its plan yet, and one step
+    of it can close the gap by the lead before the next tick shows it (a few centimetres at a
+    period of 0.25 s, 0.7 m at 1 s; without it followers collided at coarse periods). A
+    neighbour already closer than that (robots start close, or two set off in the same tick)
+    is kept from coming any closer:
     the path may not move towards its current position at all (no sample behind the line
     through ``now = (t, x, y)`` square to the direction away from it). Two robots that both keep
     this rule never close in, whatever they do at the same time, and a robot can always move
@@ -156,9 +168,12 @@ def stops_clear(
     """
     _, x, y = now
     for f in forecasts:
-        need = radius + f.radius + margin
         if gaps is not None and f.robot in gaps:
+            # Lower in priority and closer than its own gap plus lead, it keeps the half-plane
+            # rule below towards this robot: its move of this tick cannot come closer.
             need = gaps[f.robot]
+        else:
+            need = radius + f.radius + margin + f.lead
         ux, uy = x - f.x, y - f.y
         if ux * ux + uy * uy < need * need:
             for _, sx, sy in path:
