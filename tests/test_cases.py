@@ -1,13 +1,13 @@
 """The minimal cases found from outside (tests/cases/, copied from ../shared/cases/): each
 expects what tests/cases/README.md says it should show.
 
-Those main does not meet yet are marked xfail with ``strict``: they fail the suite as soon as a
-change makes them pass, so the mark is taken off in the change that fixes them (the safety and
-liveness issue).
+A case main did not meet would be marked xfail with ``strict`` (failing the suite as soon as a
+change makes it pass); none is now.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +20,6 @@ from fleet.paths import PathPlanner
 from fleet.scenario import load_scenario
 
 CASES = Path(__file__).resolve().parent / "cases"
-LIVENESS = "issue 16: liveness (an idle or parked robot blocks a trip for good)"
 
 
 def summary_of(case: str, file: str = "scen.toml", **override: Any) -> dict[str, Any]:
@@ -37,10 +36,21 @@ def test_an_idle_robot_parked_on_a_path_never_blocks_it_for_good(controller: str
     assert s["violations"]["collision"] == 0
 
 
-@pytest.mark.xfail(strict=True, reason=LIVENESS)
-def test_a_trip_via_a_station_where_a_robot_is_parked_is_delivered() -> None:
-    s = summary_of("via_parked_robot")
+@pytest.mark.parametrize("controller", ["follower", "mpc"])
+def test_a_trip_via_a_station_where_a_robot_is_parked_is_delivered(controller: str) -> None:
+    scenario = load_scenario(CASES / "via_parked_robot" / "scen.toml").override(
+        controller=controller
+    )
+    world = World(scenario)
+    s = world.run().summary
     assert s["jobs"]["completed"] == s["jobs"]["released"] == 1
+    assert s["violations"]["collision"] == 0
+    # The block is reported, and resolved by the idle robot stepping aside, then going home.
+    kinds = {(e.event, e.robot) for e in world.recorder.events}
+    assert ("deadlock", "r02") in kinds and ("make_way", "r01") in kinds
+    assert s["engine"]["made_way"] >= 1
+    r01 = world.robots["r01"]
+    assert math.dist((r01.x, r01.y), r01.home) <= scenario.arrival_tolerance_m
 
 
 def test_jobs_to_one_station_are_all_delivered() -> None:

@@ -12,6 +12,7 @@ import math
 from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import simpy
 
@@ -24,6 +25,9 @@ from fleet.plugins import RobotSpec
 from fleet.plugins.robot import DoubleIntegrator, clip
 from fleet.printing import CapSchedule
 from fleet.scenario import Scenario
+
+if TYPE_CHECKING:
+    from fleet.engine.makeway import Aside
 
 __all__ = ["RobotState", "Turning", "build_robots", "at_rest_near", "REST_SPEED", "EFFECT_EPS_S"]
 
@@ -87,6 +91,10 @@ class RobotState:
     #: Robots found blocking this one (deadlock), and until when its priority is raised.
     blockers: tuple[str, ...] = ()
     boosted_until: float = -math.inf
+    #: Stuck (blocked by robots, or by idle robots it waits for to step aside), reported once.
+    stalled: bool = False
+    #: Idle, it steps aside for a robot it blocked (`fleet.engine.makeway.Aside`).
+    aside: Aside | None = None
     #: Compute latency (`Scenario.latency`): inputs waiting to take effect as ``(effect time,
     #: ax, ay)`` in order of effect (clipped to a_max), the input in force (the last one that
     #: took effect; 0 at the start), the latency (s) of each controller command that had one,

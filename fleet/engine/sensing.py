@@ -15,6 +15,7 @@ import math
 from collections import defaultdict
 from collections.abc import Mapping
 
+from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning
 from fleet.engine.recorder import Recorder
 from fleet.plugins import CAP_LOOKAHEAD_S, Neighbour, Observation
@@ -50,11 +51,13 @@ class Sensing:
         robots: Mapping[str, RobotState],
         recorder: Recorder,
         turning: Turning,
+        make_way: MakeWay,
     ) -> None:
         self.scenario = scenario
         self.robots = robots
         self.recorder = recorder
         self.turning = turning
+        self.make_way = make_way
 
     def observe(self, robots: list[RobotState], t: float) -> list[Observation]:
         """The observations of `robots` (due at `t`), from one snapshot of the floor."""
@@ -69,8 +72,10 @@ class Sensing:
         tol = self.scenario.arrival_tolerance_m
         for r in robots:
             goal = r.goal
-            if goal is None and r.return_home:
-                goal = r.home
+            if goal is None:
+                goal = self.make_way.idle_goal(r, t)
+            else:
+                r.aside = None  # a job ends stepping aside
             self._watch_progress(r, goal, t, tol)
             if (
                 r.turn_rate is not None
@@ -124,33 +129,45 @@ class Sensing:
         observation names them (its controller routes round them) and its priority is raised."""
         after = self.scenario.deadlock_after_s
         if goal is None or after is None or r.faulted:
-            r.watched_goal, r.blockers = None, ()
+            r.watched_goal, r.blockers, r.stalled = None, (), False
             return
         gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
         if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M:
             r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, t, ()
+            r.stalled = False
             return
         if t - r.progress_s < after - 1e-9:
             return
-        # Robots standing on this one's goal are no deadlock: it waits its turn there. At a
-        # coarse period robots stand further off (a step of a_max*dt**2 per axis that a
+        # At a coarse period robots stand further off (a step of a_max*dt**2 per axis that a
         # neighbour may take unseen is kept clear of): such a stand-off counts too.
         reach = BLOCKING_GAP_M + math.sqrt(2.0) * r.spec.a_max * r.spec.period**2
-        blockers = tuple(
-            o.id
+        near = [
+            o
             for o in self.robots.values()
             if o is not r
             and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + reach
-            and math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
+        ]
+        # A robot standing on this one's goal with a job of its own is no deadlock: this one
+        # waits its turn there. The controller routes round the others (not round its goal).
+        blockers = tuple(
+            o.id
+            for o in near
+            if math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
         )
-        if blockers and not r.blockers:
+        # An idle robot never leaves by itself, on the goal or not: it is asked to.
+        idle = [o for o in near if o.job is None and not o.faulted]
+        stalled = bool(blockers or idle)
+        if stalled and not r.stalled:
             self.recorder.stats["deadlocks"] += 1
             r.boosted_until = t + after
+            named = sorted({*blockers, *(o.id for o in idle)})
             self.recorder.event(
-                t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(blockers)
+                t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(named)
             )
-            log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, list(blockers))
-        r.blockers = blockers
+            log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, named)
+        r.blockers, r.stalled = blockers, stalled
+        if idle:
+            self.make_way.ask(r, goal, idle, t)
 
     def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
         """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;

@@ -29,6 +29,7 @@ from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, s
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
+from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
 from fleet.engine.placement import Placement
 from fleet.engine.recorder import Recorder
@@ -129,7 +130,10 @@ class World:
             self.recorder,
             self.dispatch,
         )
-        self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning)
+        make_way = MakeWay(
+            self.floor, self.robots, self.recorder, self.planner_for, scenario.deadlock_after_s
+        )
+        self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning, make_way)
         self.rounds = BusRounds(
             self.env,
             self.exchange,

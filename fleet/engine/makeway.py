@@ -1,0 +1,203 @@
+"""Making way: an idle robot steps aside for a robot stuck behind it.
+
+An idle robot (no job, none queued) never leaves its spot by itself, so a robot whose route
+runs through that spot, or ends on it (a via station where an idle robot is parked), would
+wait for good. When the deadlock watch (`fleet.engine.sensing`) finds an idle robot among the
+ones blocking a stuck robot, `MakeWay` sends the idle one to a spot off the stuck robot's
+route: the nearest of a few rings of candidates round it that lies in the free space, keeps
+`AWAY_M` plus both radii from the route and the stuck robot's goal, and is clear of the other
+robots. The idle robot holds the spot until the robot it made way for has moved on (its goal
+changed, or it lost its agent), or for `HOLD_FACTOR` deadlock periods at most, then goes home
+as idle robots do (or stays there, without `return_home`). A job assigned meanwhile ends it.
+
+Spots are found deterministically (no random draws), so a run stays reproducible.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import shapely
+from shapely.geometry import LineString, Point
+
+from fleet.engine.motion import RobotState
+from fleet.engine.recorder import Recorder
+from fleet.errors import NoPathError
+from fleet.floor import Floor
+from fleet.paths import PathPlanner
+from fleet.plugins import RobotSpec
+
+__all__ = ["MakeWay", "Aside", "AWAY_M", "HOLD_FACTOR"]
+
+log = logging.getLogger("fleet.engine")
+
+#: Gap (m) kept between the idle robot's footprint and the stuck robot's, anywhere on the
+#: stuck robot's route, on top of the two radii.
+AWAY_M = 0.5
+#: Gap (m) kept from every other robot, on top of the two radii.
+OTHERS_M = 0.2
+#: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the idle robot.
+RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+#: Candidate directions on each ring.
+DIRECTIONS = 24
+#: An idle robot holds its spot aside for at most this many deadlock periods.
+HOLD_FACTOR = 4.0
+
+
+@dataclass(frozen=True, slots=True)
+class Aside:
+    """Where an idle robot waits off another's route, for whom, and until when at most."""
+
+    spot: tuple[float, float]
+    #: The robot it made way for, and that robot's goal then (once it changes, the way is free).
+    made_way_for: str
+    their_goal: tuple[float, float]
+    until: float
+
+
+class MakeWay:
+    """Sends idle robots that block a stuck robot to spots off its route, and back."""
+
+    def __init__(
+        self,
+        floor: Floor,
+        robots: Mapping[str, RobotState],
+        recorder: Recorder,
+        planner_for: Callable[[RobotSpec], PathPlanner],
+        deadlock_after_s: float | None,
+    ) -> None:
+        self.floor = floor
+        self.robots = robots
+        self.recorder = recorder
+        self.planner_for = planner_for
+        self.hold_s = HOLD_FACTOR * (deadlock_after_s or 0.0)
+
+    def idle_goal(self, robot: RobotState, t: float) -> tuple[float, float] | None:
+        """Where an idle `robot` heads: its spot aside while it still holds one, else home (or
+        nowhere, without `return_home`)."""
+        aside = robot.aside
+        if aside is not None and not self._still_needed(aside, t):
+            robot.aside = aside = None
+        if aside is not None:
+            return aside.spot
+        return robot.home if robot.return_home else None
+
+    def ask(
+        self, stuck: RobotState, goal: tuple[float, float], idle: Sequence[RobotState], t: float
+    ) -> None:
+        """Send each of the `idle` robots blocking `stuck` (heading for `goal`) aside, unless it
+        already is; a robot with no spot to go to stays (the deadlock stays reported)."""
+        route = None
+        for robot in idle:
+            if robot.aside is not None and robot.aside.made_way_for == stuck.id:
+                continue
+            if route is None:
+                route = self._route(stuck, goal)
+            spot = self._spot(robot, stuck, route)
+            job = "" if stuck.job is None else stuck.job.job.id
+            if spot is None:
+                self.recorder.stats["no_way_aside"] += 1
+                log.info(
+                    "t = %.2f s: idle robot %s blocks %s and has no spot off its route",
+                    t,
+                    robot.id,
+                    stuck.id,
+                )
+                continue
+            robot.aside = Aside(spot, stuck.id, goal, t + self.hold_s)
+            self.recorder.stats["made_way"] += 1
+            self.recorder.event(t, "make_way", job, robot.id, stuck.id)
+            log.info(
+                "t = %.2f s: idle robot %s steps aside to (%.2f, %.2f) for %s",
+                t,
+                robot.id,
+                spot[0],
+                spot[1],
+                stuck.id,
+            )
+
+    # -- helpers --------------------------------------------------------------------------------
+    def _still_needed(self, aside: Aside, t: float) -> bool:
+        if t >= aside.until:
+            return False
+        other = self.robots.get(aside.made_way_for)
+        if other is None or other.faulted:
+            return False
+        target = other.goal
+        if target is None and other.return_home:
+            target = other.home
+        return target == aside.their_goal
+
+    def _route(self, stuck: RobotState, goal: tuple[float, float]) -> shapely.Geometry:
+        """The stuck robot's route as the path layer plans it: to its goal and, with a job,
+        on through its later via stations to the destination (robots ignored)."""
+        points = [(stuck.x, stuck.y), goal]
+        rec = stuck.job
+        if rec is not None and stuck.goal == goal:
+            points += [(x, y) for _, x, y in rec.via[rec.leg + 1 :]]
+            if rec.leg < len(rec.via):
+                points.append((rec.job.x, rec.job.y))
+        planner = self.planner_for(stuck.spec)
+        lines = []
+        for a, b in zip(points, points[1:], strict=False):
+            if math.dist(a, b) < 1e-9:
+                continue
+            try:
+                lines.append(planner.path(a, b).waypoints)
+            except NoPathError:
+                lines.append((a, b))
+        if not lines:
+            return Point(goal)
+        return shapely.union_all([LineString(w) for w in lines] + [Point(goal)])
+
+    def _spot(
+        self, robot: RobotState, stuck: RobotState, route: shapely.Geometry
+    ) -> tuple[float, float] | None:
+        """The nearest spot on `RINGS` round `robot` it can drive to that is off `route` and
+        clear of the other robots; on one ring, the one furthest from the route."""
+        free = self.floor.free_space
+        away = robot.spec.radius + stuck.spec.radius + AWAY_M
+        others = [
+            (o.x, o.y, robot.spec.radius + o.spec.radius + OTHERS_M)
+            for o in self.robots.values()
+            if o is not robot and o is not stuck
+        ]
+        for ring in RINGS:
+            best, best_gap = None, -math.inf
+            for k in range(DIRECTIONS):
+                angle = 2.0 * math.pi * k / DIRECTIONS
+                x = robot.x + ring * away * math.cos(angle)
+                y = robot.y + ring * away * math.sin(angle)
+                spot = Point(x, y)
+                if not free.covers(spot):
+                    continue
+                gap = route.distance(spot)
+                if gap < away or gap <= best_gap:
+                    continue
+                if any(math.hypot(x - ox, y - oy) < d for ox, oy, d in others):
+                    continue
+                if not self._reachable(robot, stuck, (x, y)):
+                    continue
+                best, best_gap = (x, y), gap
+            if best is not None:
+                return best
+        return None
+
+    def _reachable(self, robot: RobotState, stuck: RobotState, spot: tuple[float, float]) -> bool:
+        """Whether `robot` can drive to `spot` without coming within reach of `stuck`: straight
+        if the free space holds the segment, else along the path layer's path."""
+        leg = LineString([(robot.x, robot.y), spot])
+        if not self.floor.free_space.covers(leg):
+            try:
+                waypoints = self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints
+            except NoPathError:
+                return False
+            leg = LineString(waypoints)
+        # Robots stuck together may already stand closer than that: then never any closer.
+        there = Point(stuck.x, stuck.y)
+        now = there.distance(Point(robot.x, robot.y))
+        reach = min(robot.spec.radius + stuck.spec.radius + OTHERS_M, now)
+        return leg.distance(there) >= reach - 1e-6

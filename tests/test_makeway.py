@@ -1,0 +1,95 @@
+"""Making way (fleet.engine.makeway): where an idle robot that blocks a stuck one goes, judged
+with shapely from the map file, and how long it stays there."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from shapely.geometry import LineString, Point, box
+
+from fleet.engine import World
+from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M
+from fleet.scenario import load_scenario
+
+CASE = Path(__file__).resolve().parent / "cases" / "via_parked_robot"
+
+
+@pytest.fixture(scope="module")
+def world() -> World:
+    w = World(load_scenario(CASE / "scen.toml"))
+    yield w
+    w._close_bus()
+
+
+def hall_from_map() -> tuple[box, float]:
+    """The hall the map file describes, shrunk by its clearance: where centres may be."""
+    spec = tomllib.loads((CASE / "floor.toml").read_text())["floor"]
+    x0, y0, x1, y1 = spec["rect"]
+    c = spec["clearance"]
+    return box(x0 + c, y0 + c, x1 - c, y1 - c), c
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    idle_xy=st.tuples(st.floats(1.0, 29.0), st.floats(1.0, 19.0)),
+    stuck_xy=st.tuples(st.floats(1.0, 29.0), st.floats(1.0, 19.0)),
+)
+def test_the_spot_aside_is_free_off_the_route_and_reached_without_closing_in(
+    world: World, idle_xy, stuck_xy
+) -> None:
+    idle, stuck = world.robots["r01"], world.robots["r02"]
+    hall, _ = hall_from_map()
+    if not (hall.covers(Point(idle_xy)) and hall.covers(Point(stuck_xy))):
+        return
+    if math.dist(idle_xy, stuck_xy) < idle.spec.radius + stuck.spec.radius:
+        return
+    idle.x, idle.y = idle_xy
+    stuck.x, stuck.y = stuck_xy
+    idle.aside = None
+    goal = (idle.x, idle.y)  # the worst case: the idle robot stands on the stuck one's goal
+    world.sensing.make_way.ask(stuck, goal, [idle], t=0.0)
+    assert idle.aside is not None  # an empty hall always has room aside
+    spot = idle.aside.spot
+    assert hall.covers(Point(spot))
+    away = idle.spec.radius + stuck.spec.radius + AWAY_M
+    route = LineString([stuck_xy, goal])  # an empty hall: the route is the straight line
+    assert route.distance(Point(spot)) >= away - 1e-9
+    start_gap = math.dist(idle_xy, stuck_xy)
+    leg = LineString([idle_xy, spot])
+    reach = idle.spec.radius + stuck.spec.radius + OTHERS_M
+    assert leg.distance(Point(stuck_xy)) >= min(start_gap, reach) - 1e-6
+
+
+def test_an_empty_hall_always_has_a_spot(world: World) -> None:
+    idle, stuck = world.robots["r01"], world.robots["r02"]
+    idle.x, idle.y, stuck.x, stuck.y = 5.0, 10.0, 5.96, 10.0
+    idle.aside = None
+    world.sensing.make_way.ask(stuck, (5.0, 10.0), [idle], t=3.0)
+    assert idle.aside is not None
+    assert idle.aside.made_way_for == "r02"
+    assert idle.aside.until == pytest.approx(3.0 + HOLD_FACTOR * world.scenario.deadlock_after_s)
+
+
+def test_the_idle_robot_holds_its_spot_until_the_stuck_robot_moves_on(world: World) -> None:
+    idle, stuck = world.robots["r01"], world.robots["r02"]
+    idle.x, idle.y, stuck.x, stuck.y = 15.0, 10.0, 13.5, 10.0
+    idle.aside, idle.job, stuck.job = None, None, None
+    stuck.return_home = True
+    make_way = world.sensing.make_way
+    make_way.ask(stuck, stuck.home, [idle], t=0.0)  # stuck on its way home
+    spot = idle.aside.spot
+    assert make_way.idle_goal(idle, 1.0) == spot
+    # Past the hold it goes home, even if the other is still where it was.
+    assert make_way.idle_goal(idle, idle.aside.until + 1.0) == idle.home
+    assert idle.aside is None
+    make_way.ask(stuck, stuck.home, [idle], t=0.0)
+    stuck.faulted = True  # the robot it made way for lost its agent: no need to wait
+    try:
+        assert make_way.idle_goal(idle, 1.0) == idle.home
+    finally:
+        stuck.faulted = False
