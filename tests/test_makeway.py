@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, box
 
 from fleet.engine import World
-from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M
+from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M, MakeWay
 from fleet.scenario import load_scenario
 
 CASE = Path(__file__).resolve().parent / "cases" / "via_parked_robot"
@@ -24,6 +24,12 @@ def world() -> World:
     w = World(load_scenario(CASE / "scen.toml"))
     yield w
     w._close_bus()
+
+
+def fresh(world: World) -> MakeWay:
+    """A MakeWay of the world's own with nothing asked yet."""
+    w = world
+    return MakeWay(w.floor, w.robots, w.recorder, w.planner_for, w.scenario.deadlock_after_s)
 
 
 def hall_from_map() -> tuple[box, float]:
@@ -52,7 +58,7 @@ def test_the_spot_aside_is_free_off_the_route_and_reached_without_closing_in(
     stuck.x, stuck.y = stuck_xy
     idle.aside = None
     goal = (idle.x, idle.y)  # the worst case: the idle robot stands on the stuck one's goal
-    world.sensing.make_way.ask(stuck, goal, [idle], t=0.0)
+    fresh(world).ask(stuck, goal, [idle], t=0.0)
     assert idle.aside is not None  # an empty hall always has room aside
     spot = idle.aside.spot
     assert hall.covers(Point(spot))
@@ -69,7 +75,7 @@ def test_an_empty_hall_always_has_a_spot(world: World) -> None:
     idle, stuck = world.robots["r01"], world.robots["r02"]
     idle.x, idle.y, stuck.x, stuck.y = 5.0, 10.0, 5.96, 10.0
     idle.aside = None
-    world.sensing.make_way.ask(stuck, (5.0, 10.0), [idle], t=3.0)
+    fresh(world).ask(stuck, (5.0, 10.0), [idle], t=3.0)
     assert idle.aside is not None
     assert idle.aside.made_way_for == "r02"
     assert idle.aside.until == pytest.approx(3.0 + HOLD_FACTOR * world.scenario.deadlock_after_s)
@@ -80,14 +86,17 @@ def test_the_idle_robot_holds_its_spot_until_the_stuck_robot_moves_on(world: Wor
     idle.x, idle.y, stuck.x, stuck.y = 15.0, 10.0, 13.5, 10.0
     idle.aside, idle.job, stuck.job = None, None, None
     stuck.return_home = True
-    make_way = world.sensing.make_way
+    make_way = fresh(world)
     make_way.ask(stuck, stuck.home, [idle], t=0.0)  # stuck on its way home
     spot = idle.aside.spot
     assert make_way.idle_goal(idle, 1.0) == spot
     # Past the hold it goes home, even if the other is still where it was.
     assert make_way.idle_goal(idle, idle.aside.until + 1.0) == idle.home
     assert idle.aside is None
-    make_way.ask(stuck, stuck.home, [idle], t=0.0)
+    make_way.ask(stuck, stuck.home, [idle], t=1.0)  # asked again within a deadlock period
+    assert idle.aside is None
+    make_way.ask(stuck, stuck.home, [idle], t=world.scenario.deadlock_after_s)
+    assert idle.aside is not None
     stuck.faulted = True  # the robot it made way for lost its agent: no need to wait
     try:
         assert make_way.idle_goal(idle, 1.0) == idle.home

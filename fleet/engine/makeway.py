@@ -73,7 +73,12 @@ class MakeWay:
         self.robots = robots
         self.recorder = recorder
         self.planner_for = planner_for
-        self.hold_s = HOLD_FACTOR * (deadlock_after_s or 0.0)
+        self.retry_s = deadlock_after_s or 0.0
+        self.hold_s = HOLD_FACTOR * self.retry_s
+        #: When each (idle, stuck) pair was last looked at: a stuck robot asks at every tick,
+        #: and a search that found no spot, or a spot that did not help, waits a deadlock
+        #: period before the next.
+        self._asked: dict[tuple[str, str], float] = {}
 
     def idle_goal(self, robot: RobotState, t: float) -> tuple[float, float] | None:
         """Where an idle `robot` heads: its spot aside while it still holds one, else home (or
@@ -89,11 +94,16 @@ class MakeWay:
         self, stuck: RobotState, goal: tuple[float, float], idle: Sequence[RobotState], t: float
     ) -> None:
         """Send each of the `idle` robots blocking `stuck` (heading for `goal`) aside, unless it
-        already is; a robot with no spot to go to stays (the deadlock stays reported)."""
+        already is or was asked less than a deadlock period ago; a robot with no spot to go to
+        stays (the deadlock stays reported)."""
         route = None
         for robot in idle:
             if robot.aside is not None and robot.aside.made_way_for == stuck.id:
                 continue
+            pair = (robot.id, stuck.id)
+            if t < self._asked.get(pair, -math.inf) + self.retry_s:
+                continue
+            self._asked[pair] = t
             if route is None:
                 route = self._route(stuck, goal)
             spot = self._spot(robot, stuck, route)
