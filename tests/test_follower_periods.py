@@ -151,3 +151,57 @@ def test_followers_never_touch_at_any_period(
     assert rows >= robots * scenario.duration_s / period  # every robot at every step
     assert contacts == []
     assert summary["distance_m"] >= 1.0  # not vacuous: the robots drove
+
+
+@settings(
+    max_examples=8, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+@given(
+    floor=st.one_of(empty_hall(), random_floor()),
+    periods=st.lists(st.sampled_from([0.1, 0.25, 0.5, 1.0]), min_size=2, max_size=2, unique=True),
+    seed=st.integers(0, 1000),
+    gaps=st.lists(st.floats(0.0, 6.0), min_size=3, max_size=5),
+)
+def test_followers_of_mixed_periods_never_touch(
+    floor: Floor, periods: list[float], seed: int, gaps: list[float]
+) -> None:
+    # A neighbour's period is not in its observation: each robot forecasts with its own.
+    a, b = floor.station("a"), floor.station("b")
+    try:
+        trip = PathPlanner(floor, 1.0, 0.5).path((a.x, a.y), (b.x, b.y))
+    except NoPathError:
+        assume(False)
+    note(f"periods {periods} s, seed {seed}, stations {a} {b}")
+    at, jobs = 0.0, []
+    for i, gap in enumerate(gaps):
+        at += gap
+        via, to = ("a", "b") if i % 2 == 0 else ("b", "a")
+        jobs.append(ScriptedJob(at, to, via=(via,)))
+    scenario = Scenario(
+        name="follower-mixed-periods",
+        source="<follower mixed-period property>",
+        map=Path("<random floor>"),
+        duration_s=min(40.0 + 3.0 * trip.travel_time, 150.0),
+        seed=seed,
+        robots=tuple(
+            RobotsConfig(count=2, start=("a", "b"), radius=RADIUS, period_s=p) for p in periods
+        ),
+        controller=PluginChoice("follower"),
+        dispatcher=PluginChoice("greedy"),
+        jobs=JobsConfig(mode="scripted", scripted=tuple(jobs)),
+        sensing_radius_m=6.0,
+        deadlock_after_s=10.0,
+    )
+    try:
+        world = World(scenario, floor)
+    except ScenarioError as exc:
+        assert not exc.field.endswith("period_s"), exc
+        assume(False)
+    summary = world.run().summary
+    with tempfile.TemporaryDirectory() as out:
+        world.write(Path(out))
+        contacts = closest_pairs(
+            Path(out) / "trajectories.csv", dict.fromkeys(world.robots, RADIUS)
+        )
+    assert contacts == []
+    assert summary["distance_m"] >= 1.0
