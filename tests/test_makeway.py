@@ -86,19 +86,28 @@ def test_the_idle_robot_holds_its_spot_until_the_stuck_robot_moves_on(world: Wor
     idle.x, idle.y, stuck.x, stuck.y = 15.0, 10.0, 13.5, 10.0
     idle.aside, idle.job, stuck.job = None, None, None
     stuck.return_home = True
+    stuck.watched_goal = stuck.home  # what the deadlock watch saw it head for
     make_way = fresh(world)
     make_way.ask(stuck, stuck.home, [idle], t=0.0)  # stuck on its way home
     spot = idle.aside.spot
-    assert make_way.idle_goal(idle, 1.0) == spot
+    assert make_way.goal_of(idle, 1.0) == spot
     # Past the hold it goes home, even if the other is still where it was.
-    assert make_way.idle_goal(idle, idle.aside.until + 1.0) == idle.home
+    assert make_way.goal_of(idle, idle.aside.until + 1.0) == idle.home
     assert idle.aside is None
     make_way.ask(stuck, stuck.home, [idle], t=1.0)  # asked again within a deadlock period
     assert idle.aside is None
     make_way.ask(stuck, stuck.home, [idle], t=world.scenario.deadlock_after_s)
     assert idle.aside is not None
+    # Driven on: nearer its goal by the passing distance, but still beside the spot.
+    passed = idle.aside.passed_m
+    stuck.x = idle.aside.spot[0] + 0.5 * passed
+    assert make_way.goal_of(idle, 2.0) == idle.aside.spot
+    stuck.x = idle.aside.spot[0] + passed + 0.1  # past: the way home is free
+    assert make_way.goal_of(idle, 2.0) == idle.home
+    stuck.x = 13.5
+    make_way.ask(stuck, stuck.home, [idle], t=2 * world.scenario.deadlock_after_s)
     stuck.faulted = True  # the robot it made way for lost its agent: no need to wait
     try:
-        assert make_way.idle_goal(idle, 1.0) == idle.home
+        assert make_way.goal_of(idle, 1.0) == idle.home
     finally:
         stuck.faulted = False

@@ -1,14 +1,17 @@
-"""Making way: an idle robot steps aside for a robot stuck behind it.
+"""Making way: a robot in the way steps aside for a stuck robot with a job.
 
-An idle robot (no job, none queued) never leaves its spot by itself, so a robot whose route
-runs through that spot, or ends on it (a via station where an idle robot is parked), would
-wait for good. When the deadlock watch (`fleet.engine.sensing`) finds an idle robot among the
-ones blocking a stuck robot, `MakeWay` sends the idle one to a spot off the stuck robot's
-route: the nearest of a few rings of candidates round it that lies in the free space, keeps
-`AWAY_M` plus both radii from the route and the stuck robot's goal, and is clear of the other
-robots. The idle robot holds the spot until the robot it made way for has moved on (its goal
-changed, or it lost its agent), or for `HOLD_FACTOR` deadlock periods at most, then goes home
-as idle robots do (or stays there, without `return_home`). A job assigned meanwhile ends it.
+An idle robot (no job, none queued) never leaves its spot by itself, and robots with jobs that
+wait for each other (several crowding one station) never move either, so a robot whose route
+runs through such a spot, or ends on it (a via station where an idle robot is parked), would
+wait for good. When the deadlock watch (`fleet.engine.sensing`) finds, among the robots round a
+stuck robot with a job, idle ones or stuck ones of lower priority not at their own goals,
+`MakeWay` sends each to a spot off the stuck robot's route: the nearest of a few rings of
+candidates round it that lies in the free space, keeps `AWAY_M` plus both radii from the route
+and the stuck robot's goal, is clear of the other robots and is reached without closing in on
+the stuck robot. It holds the spot until the robot it made way for has a new goal, is past
+(`PASSED_FACTOR`), or lost its agent, for `HOLD_FACTOR` deadlock periods at most; then it goes
+on with its job, or home as idle robots do (or stays, without `return_home`). A job assigned or
+taken away meanwhile ends the wait.
 
 Spots are found deterministically (no random draws), so a run stays reproducible.
 """
@@ -30,36 +33,44 @@ from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec
 
-__all__ = ["MakeWay", "Aside", "AWAY_M", "HOLD_FACTOR"]
+__all__ = ["MakeWay", "Aside", "AWAY_M", "HOLD_FACTOR", "PASSED_FACTOR"]
 
 log = logging.getLogger("fleet.engine")
 
-#: Gap (m) kept between the idle robot's footprint and the stuck robot's, anywhere on the
+#: Gap (m) kept between the robot aside's footprint and the stuck robot's, anywhere on the
 #: stuck robot's route, on top of the two radii.
 AWAY_M = 0.5
 #: Gap (m) kept from every other robot, on top of the two radii.
 OTHERS_M = 0.2
-#: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the idle robot.
+#: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the robot.
 RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 #: Candidate directions on each ring.
 DIRECTIONS = 24
-#: An idle robot holds its spot aside for at most this many deadlock periods.
+#: A robot holds its spot aside for at most this many deadlock periods.
 HOLD_FACTOR = 4.0
+#: The robot made way for is past once it is this many times (both radii + `AWAY_M`) closer to
+#: its goal than when it stuck, and as far from the spot aside.
+PASSED_FACTOR = 2.0
 
 
 @dataclass(frozen=True, slots=True)
 class Aside:
-    """Where an idle robot waits off another's route, for whom, and until when at most."""
+    """Where a robot waits off another's route, for whom, and until when at most."""
 
     spot: tuple[float, float]
-    #: The robot it made way for, and that robot's goal then (once it changes, the way is free).
+    #: The robot it made way for, that robot's goal then (once it changes, the way is free) and
+    #: its distance to it (once it is `passed_m` closer and as far from the spot, it is past).
     made_way_for: str
     their_goal: tuple[float, float]
+    their_gap: float
+    passed_m: float
     until: float
+    #: The job the robot had when it stepped aside (None: idle); another one ends the wait.
+    job: str | None = None
 
 
 class MakeWay:
-    """Sends idle robots that block a stuck robot to spots off its route, and back."""
+    """Sends robots that block a stuck one for good to spots off its route, and back."""
 
     def __init__(
         self,
@@ -75,29 +86,31 @@ class MakeWay:
         self.planner_for = planner_for
         self.retry_s = deadlock_after_s or 0.0
         self.hold_s = HOLD_FACTOR * self.retry_s
-        #: When each (idle, stuck) pair was last looked at: a stuck robot asks at every tick,
+        #: When each (robot, stuck robot) pair was last looked at: a stuck robot asks at every tick,
         #: and a search that found no spot, or a spot that did not help, waits a deadlock
         #: period before the next.
         self._asked: dict[tuple[str, str], float] = {}
 
-    def idle_goal(self, robot: RobotState, t: float) -> tuple[float, float] | None:
-        """Where an idle `robot` heads: its spot aside while it still holds one, else home (or
-        nowhere, without `return_home`)."""
+    def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
+        """Where `robot` heads now: its spot aside while it still holds one, else where its job
+        sends it, else home (or nowhere, idle without `return_home`)."""
         aside = robot.aside
-        if aside is not None and not self._still_needed(aside, t):
+        if aside is not None and not self._still_needed(robot, aside, t):
             robot.aside = aside = None
         if aside is not None:
             return aside.spot
+        if robot.goal is not None:
+            return robot.goal
         return robot.home if robot.return_home else None
 
     def ask(
-        self, stuck: RobotState, goal: tuple[float, float], idle: Sequence[RobotState], t: float
+        self, stuck: RobotState, goal: tuple[float, float], movable: Sequence[RobotState], t: float
     ) -> None:
-        """Send each of the `idle` robots blocking `stuck` (heading for `goal`) aside, unless it
+        """Send each of the `movable` robots blocking `stuck` (heading for `goal`) aside, unless it
         already is or was asked less than a deadlock period ago; a robot with no spot to go to
         stays (the deadlock stays reported)."""
         route = None
-        for robot in idle:
+        for robot in movable:
             if robot.aside is not None and robot.aside.made_way_for == stuck.id:
                 continue
             pair = (robot.id, stuck.id)
@@ -111,17 +124,26 @@ class MakeWay:
             if spot is None:
                 self.recorder.stats["no_way_aside"] += 1
                 log.info(
-                    "t = %.2f s: idle robot %s blocks %s and has no spot off its route",
+                    "t = %.2f s: robot %s blocks %s and has no spot off its route",
                     t,
                     robot.id,
                     stuck.id,
                 )
                 continue
-            robot.aside = Aside(spot, stuck.id, goal, t + self.hold_s)
+            away = robot.spec.radius + stuck.spec.radius + AWAY_M
+            robot.aside = Aside(
+                spot,
+                stuck.id,
+                goal,
+                math.hypot(goal[0] - stuck.x, goal[1] - stuck.y),
+                PASSED_FACTOR * away,
+                t + self.hold_s,
+                None if robot.job is None else robot.job.job.id,
+            )
             self.recorder.stats["made_way"] += 1
             self.recorder.event(t, "make_way", job, robot.id, stuck.id)
             log.info(
-                "t = %.2f s: idle robot %s steps aside to (%.2f, %.2f) for %s",
+                "t = %.2f s: robot %s steps aside to (%.2f, %.2f) for %s",
                 t,
                 robot.id,
                 spot[0],
@@ -130,16 +152,19 @@ class MakeWay:
             )
 
     # -- helpers --------------------------------------------------------------------------------
-    def _still_needed(self, aside: Aside, t: float) -> bool:
-        if t >= aside.until:
+    def _still_needed(self, robot: RobotState, aside: Aside, t: float) -> bool:
+        """Whether `robot` still waits aside: the hold has not run out, it has the job it had,
+        and the robot it made way for is still on its way to the same goal and not past."""
+        job = None if robot.job is None else robot.job.job.id
+        if t >= aside.until or job != aside.job:
             return False
         other = self.robots.get(aside.made_way_for)
-        if other is None or other.faulted:
+        if other is None or other.faulted or other.watched_goal != aside.their_goal:
             return False
-        target = other.goal
-        if target is None and other.return_home:
-            target = other.home
-        return target == aside.their_goal
+        gx, gy = aside.their_goal
+        closer = math.hypot(gx - other.x, gy - other.y) < aside.their_gap - aside.passed_m
+        sx, sy = aside.spot
+        return not (closer and math.hypot(sx - other.x, sy - other.y) > aside.passed_m)
 
     def _route(self, stuck: RobotState, goal: tuple[float, float]) -> shapely.Geometry:
         """The stuck robot's route as the path layer plans it: to its goal and, with a job,

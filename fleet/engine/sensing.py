@@ -71,12 +71,8 @@ class Sensing:
         out = []
         tol = self.scenario.arrival_tolerance_m
         for r in robots:
-            goal = r.goal
-            if goal is None:
-                goal = self.make_way.idle_goal(r, t)
-            else:
-                r.aside = None  # a job ends stepping aside
-            self._watch_progress(r, goal, t, tol)
+            goal = self.make_way.goal_of(r, t)
+            self._watch_progress(r, goal, t, tol, priority)
             if (
                 r.turn_rate is not None
                 and goal is not None
@@ -122,7 +118,12 @@ class Sensing:
         }
 
     def _watch_progress(
-        self, r: RobotState, goal: tuple[float, float] | None, t: float, tol: float
+        self,
+        r: RobotState,
+        goal: tuple[float, float] | None,
+        t: float,
+        tol: float,
+        priority: Mapping[str, int],
     ) -> None:
         """Deadlock detection: a robot that has got no closer to its goal for
         `Scenario.deadlock_after_s` while other robots stand close is blocked by them; its
@@ -154,20 +155,37 @@ class Sensing:
             for o in near
             if math.hypot(o.x - goal[0], o.y - goal[1]) > r.spec.radius + o.spec.radius
         )
-        # An idle robot never leaves by itself, on the goal or not: it is asked to.
-        idle = [o for o in near if o.job is None and not o.faulted]
-        stalled = bool(blockers or idle)
+        # An idle robot never leaves by itself, on the goal or not, nor do robots with jobs
+        # that wait for each other: a robot with a job asks the idle ones, and stuck ones of
+        # lower priority that are not at their own goals, to step aside. (A robot going home
+        # does not ask: that moved idle robots round and round the crowded depots for nothing.)
+        movable = [
+            o
+            for o in near
+            if r.job is not None
+            and not o.faulted
+            and (
+                o.job is None
+                or (
+                    o.stalled
+                    and priority[o.id] < priority[r.id]
+                    and o.goal is not None
+                    and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
+                )
+            )
+        ]
+        stalled = bool(blockers or movable)
         if stalled and not r.stalled:
             self.recorder.stats["deadlocks"] += 1
             r.boosted_until = t + after
-            named = sorted({*blockers, *(o.id for o in idle)})
+            named = sorted({*blockers, *(o.id for o in movable)})
             self.recorder.event(
                 t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(named)
             )
             log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, named)
         r.blockers, r.stalled = blockers, stalled
-        if idle:
-            self.make_way.ask(r, goal, idle, t)
+        if movable:
+            self.make_way.ask(r, goal, movable, t)
 
     def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
         """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;
