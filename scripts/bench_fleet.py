@@ -28,6 +28,7 @@ Nothing is asserted: the figures go in notes and the README.
     python scripts/bench_fleet.py [--minutes 30] [--robots 20] [--workers 0 1 2]
     python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200]
     python scripts/bench_fleet.py --sweep 10 20 40 80 [--duration 120] [--per-robot-rate 120]
+        [--out runs/sweep]
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ import argparse
 import math
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -175,8 +177,11 @@ def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, 
     return out
 
 
-def sweep(base, sizes: list[int], duration: float, per_robot_rate: float) -> None:
-    """The MPC fleet at each size: contacts, fallbacks, deadlocks and jobs (issue 16)."""
+def sweep(
+    base, sizes: list[int], duration: float, per_robot_rate: float, out: Path | None = None
+) -> None:
+    """The MPC fleet at each size: contacts, fallbacks, deadlocks and jobs (issue 16); with
+    `out`, each run's directory is written to ``out/robots<N>`` for `fleet replay`."""
     print(
         f"MPC fleet sweep on {base.map.name}: {duration:g} simulated s, "
         f"{per_robot_rate:g} jobs per robot-hour, sensing {base.sensing_radius_m:g} m, "
@@ -201,6 +206,8 @@ def sweep(base, sizes: list[int], duration: float, per_robot_rate: float) -> Non
 
         world.recorder.event = event  # type: ignore[method-assign]
         s = world.run().summary
+        if out is not None:
+            world.write(out / f"robots{n}")
         gap, a, b, t = closest_approach(world)
         fate = deadlock_outcomes(world, goals)
         d = world.recorder.stats.get("deadlocks", 0)
@@ -234,13 +241,14 @@ def main() -> None:
     ap.add_argument("--sweep", type=int, nargs="+", metavar="N", help="MPC fleet sizes to sweep")
     ap.add_argument("--duration", type=float, default=120.0, help="simulated s per sweep run")
     ap.add_argument("--per-robot-rate", type=float, default=120.0, help="sweep: jobs/robot-hour")
+    ap.add_argument("--out", type=Path, help="sweep: write each run's directory under this")
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
     if args.rate is not None:
         base = replace(base, jobs=replace(base.jobs, rate_per_h=args.rate))
     if args.sweep:
-        sweep(base, args.sweep, args.duration, args.per_robot_rate)
+        sweep(base, args.sweep, args.duration, args.per_robot_rate, args.out)
         return
     if args.balance:
         balance(base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0))
