@@ -16,17 +16,29 @@ processes, and robot-steps per second of a large follower fleet.
    `fleet run --workers 2` uses, and with the best split of every single round. ``--rate``
    sets the job rate (a busy fleet spreads the work).
 
+4. With ``--sweep N [N ...]``: the MPC fleet at each size (issue 16), for ``--duration`` (120)
+   simulated seconds with jobs at ``--per-robot-rate`` (120) per robot-hour. Per size: contacts
+   (the safety checker's collision count, and the closest approach of any two robots computed
+   here from the recorded trajectories, between samples too), solver fallbacks, deadlock events
+   and what became of each (the blocked robot got 0.25 m closer to its goal, reached it, its job
+   was handed back, or none of these by the end), jobs released and delivered, wall time.
+
 Nothing is asserted: the figures go in notes and the README.
 
     python scripts/bench_fleet.py [--minutes 30] [--robots 20] [--workers 0 1 2]
     python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200]
+    python scripts/bench_fleet.py --sweep 10 20 40 80 [--duration 120] [--per-robot-rate 120]
+        [--out runs/sweep]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from dataclasses import replace
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -96,6 +108,126 @@ def balance(scenario) -> None:
     print(f"  best split of every round: {(engine + total) / (engine + best):.2f}")
 
 
+def closest_approach(world: World) -> tuple[float, str, str, float]:
+    """The smallest centre distance minus the sum of radii of any two robots over the run, from
+    the recorded trajectories alone: ``(gap, robot, robot, t)``; a negative gap is a contact.
+
+    Between two samples each robot moves in a straight line (the position advances with the
+    step's velocity), so their difference does too: each step's minimum is exact, not sampled.
+    """
+    ids = sorted(world.robots)
+    arrays = [world.recorder.trajectories[r].arrays() for r in ids]
+    n = min(len(t) for t, _, _ in arrays)
+    t = arrays[0][0][:n]
+    xy = np.stack([a[1][:n] for a in arrays])  # (robots, samples, 2)
+    radius = np.array([world.robots[r].spec.radius for r in ids])
+    best = (math.inf, "", "", math.nan)
+    for i in range(len(ids) - 1):
+        d = xy[i + 1 :] - xy[i]  # (others, samples, 2)
+        a, b = d[:, :-1], d[:, 1:]
+        step = b - a
+        length2 = np.einsum("rsk,rsk->rs", step, step)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f = np.where(length2 > 0, -np.einsum("rsk,rsk->rs", a, step) / length2, 0.0)
+        f = np.clip(f, 0.0, 1.0)
+        gap = np.hypot(*np.moveaxis(a + f[..., None] * step, -1, 0))
+        gap -= radius[i] + radius[i + 1 :, None]
+        j, k = np.unravel_index(int(np.argmin(gap)), gap.shape)
+        if gap[j, k] < best[0]:
+            best = (float(gap[j, k]), ids[i], ids[i + 1 + j], float(t[k] + f[j, k] * (t[1] - t[0])))
+    return best
+
+
+def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, float]]) -> dict:
+    """What became of each deadlock event: the blocked robot ``reached`` its goal (within the
+    arrival tolerance, or arrived/delivered), ``progressed`` (got 0.25 m closer to it than at
+    the event), had its job ``handed back``, or ``none`` by the end of the run; and the median
+    time (s) from the event to progress."""
+    tol = world.scenario.arrival_tolerance_m
+    events = world.recorder.events
+    out: dict[str, Any] = {"reached": 0, "progressed": 0, "handed back": 0, "none": 0}
+    delays = []
+    for e in events:
+        if e.event != "deadlock":
+            continue
+        goal = goals.get((e.t, e.robot))
+        t, xy, _ = world.recorder.trajectories[e.robot].arrays()
+        after = t >= e.t - 1e-9
+        gap = np.hypot(*(xy[after] - np.asarray(goal)).T) if goal is not None else None
+        later = [
+            f
+            for f in events
+            if f.t >= e.t
+            and f.robot == e.robot
+            and f.job == e.job
+            and f.event in ("arrived", "delivered", "handed_back", "failed")
+        ]
+        arrived = bool(later) and later[0].event in ("arrived", "delivered")
+        kind = "none"
+        if arrived or (gap is not None and np.any(gap <= tol)):
+            kind = "reached"
+        elif gap is not None and np.any(gap <= gap[0] - 0.25):
+            kind = "progressed"
+        elif later:
+            kind = "handed back"
+        out[kind] += 1
+        if gap is not None and np.any(gap <= gap[0] - 0.25):
+            delays.append(float(t[after][np.argmax(gap <= gap[0] - 0.25)] - e.t))
+    out["median_s_to_progress"] = float(np.median(delays)) if delays else None
+    return out
+
+
+def sweep(
+    base, sizes: list[int], duration: float, per_robot_rate: float, out: Path | None = None
+) -> None:
+    """The MPC fleet at each size: contacts, fallbacks, deadlocks and jobs (issue 16); with
+    `out`, each run's directory is written to ``out/robots<N>`` for `fleet replay`."""
+    print(
+        f"MPC fleet sweep on {base.map.name}: {duration:g} simulated s, "
+        f"{per_robot_rate:g} jobs per robot-hour, sensing {base.sensing_radius_m:g} m, "
+        f"deadlock after {base.deadlock_after_s} s"
+    )
+    print(
+        f"{'robots':>6} {'contacts':>8} {'closest m':>9} {'pair, t':>16} {'fallbacks':>9} "
+        f"{'deadlocks':>9} {'reached/progr/handed/none':>25} {'jobs done/rel':>13} "
+        f"{'wall s':>7}"
+    )
+    for n in sizes:
+        sc = base.override(robots=n, controller="mpc", duration=duration)
+        sc = replace(sc, jobs=replace(sc.jobs, rate_per_h=per_robot_rate * n))
+        world = World(sc)
+        goals: dict[tuple[float, str], tuple[float, float]] = {}
+        record = world.recorder.event
+
+        def event(t, kind, job, robot="", station="", record=record, world=world, goals=goals):
+            if kind == "deadlock":  # where the blocked robot was heading then
+                goals[(t, robot)] = world.robots[robot].goal
+            record(t, kind, job, robot, station)
+
+        world.recorder.event = event  # type: ignore[method-assign]
+        s = world.run().summary
+        if out is not None:
+            world.write(out / f"robots{n}")
+        gap, a, b, t = closest_approach(world)
+        fate = deadlock_outcomes(world, goals)
+        d = world.recorder.stats.get("deadlocks", 0)
+        fates = "/".join(str(fate[k]) for k in ("reached", "progressed", "handed back", "none"))
+        centres = gap + world.robots[a].spec.radius + world.robots[b].spec.radius
+        print(
+            f"{n:>6} {s['violations']['collision']:>8} {centres:>9.3f} "
+            f"{f'{a}-{b} {t:.1f}':>16} {s['solver']['fallbacks']:>9} {d:>9} "
+            f"{fates:>25} "
+            f"{s['jobs']['completed']:>6}/{s['jobs']['released']:<6} {s['wall_time_s']:>7.1f}"
+        )
+        print(
+            f"{'':>6} closest: centre distance (contact below the sum of the radii); "
+            f"gap to contact {gap:+.3f} m; solver {s['solver']['termination']}; hand-backs "
+            f"{s['jobs']['handed_back']}, failed {s['jobs']['failed']}; median "
+            f"{fate['median_s_to_progress']} s from a deadlock to progress",
+            flush=True,
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=30.0, help="simulated minutes (MPC fleet)")
@@ -106,11 +238,18 @@ def main() -> None:
     ap.add_argument("--skip-mpc", action="store_true")
     ap.add_argument("--balance", action="store_true", help="only the work-balance analysis")
     ap.add_argument("--rate", type=float, help="jobs per hour (default: the scenario's)")
+    ap.add_argument("--sweep", type=int, nargs="+", metavar="N", help="MPC fleet sizes to sweep")
+    ap.add_argument("--duration", type=float, default=120.0, help="simulated s per sweep run")
+    ap.add_argument("--per-robot-rate", type=float, default=120.0, help="sweep: jobs/robot-hour")
+    ap.add_argument("--out", type=Path, help="sweep: write each run's directory under this")
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
     if args.rate is not None:
         base = replace(base, jobs=replace(base.jobs, rate_per_h=args.rate))
+    if args.sweep:
+        sweep(base, args.sweep, args.duration, args.per_robot_rate, args.out)
+        return
     if args.balance:
         balance(base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0))
         return

@@ -75,8 +75,8 @@ class MPCController(Controller):
     (`separation`). The margin is soft (a heavy cost), contact is not. With
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
     on a tie, the smaller robot id), and of the robots it outranks only when they are parked
-    for the whole horizon or close (`neighbours` says why). At most ``max_neighbours`` robots,
-    the nearest, are constrained.
+    for the whole horizon or close (`neighbours` says why). At most ``max_neighbours`` robots
+    are constrained: those the robot's reference window and previous plan come nearest to.
 
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
     error) the controller falls back: the previous plan shifted by one step if the robot is on
@@ -345,6 +345,10 @@ class MPCController(Controller):
         spec = self.context.spec
         assert self._trip is not None
         p_lo, p_hi = region_bounds(self._trip, self.horizon, data)
+        # Where the robot means to go: the reference window, and the previous plan if on it.
+        paths = [data.p_ref]
+        if self._on_plan(obs) and self._last is not None and self._last.p is not None:
+            paths.append(np.vstack([self._last.p[1:], self._last.p[-1:]]))
         nearest = robots_to_avoid(
             obs,
             spec,
@@ -353,6 +357,7 @@ class MPCController(Controller):
             p_hi,
             margin=self.separation_margin_m,
             respect_priority=self.respect_priority,
+            paths=paths,
         )
         chosen = tuple(nearest[: self.max_neighbours])
         if not chosen:

@@ -1,0 +1,45 @@
+"""The fleet sweep's own contact check (scripts/bench_fleet.py): exact between samples."""
+
+from types import SimpleNamespace
+
+import pytest
+
+from fleet.engine.recorder import Trajectory
+from tests.scripts import load_script
+
+
+def world(paths: dict[str, list[tuple[float, float]]], radius: float = 0.4) -> SimpleNamespace:
+    trajectories = {}
+    for robot, points in paths.items():
+        tr = Trajectory()
+        for k, (x, y) in enumerate(points):
+            tr.append(0.25 * k, x, y, 0.0, 0.0)
+        trajectories[robot] = tr
+    spec = SimpleNamespace(radius=radius)
+    return SimpleNamespace(
+        robots={r: SimpleNamespace(spec=spec) for r in paths},
+        recorder=SimpleNamespace(trajectories=trajectories),
+    )
+
+
+def test_robots_that_pass_through_each_other_between_samples_are_caught() -> None:
+    bench = load_script("bench_fleet")
+    # Head-on at 4 m/s each: 2 m apart at one sample, 2 m apart (swapped) at the next.
+    w = world(
+        {
+            "r1": [(0.0, 0.0), (0.0, 0.0), (2.0, 0.0)],
+            "r2": [(3.0, 0.0), (2.0, 0.0), (0.0, 0.0)],
+            "r3": [(9.0, 9.0)] * 3,
+        }
+    )
+    gap, a, b, t = bench.closest_approach(w)
+    assert (a, b) == ("r1", "r2")
+    assert gap == pytest.approx(-0.8)  # centres met: the radii overlap entirely
+    assert t == pytest.approx(0.375)
+
+
+def test_robots_that_stay_apart_give_their_least_distance_less_the_radii() -> None:
+    bench = load_script("bench_fleet")
+    w = world({"r1": [(0.0, 0.0), (1.0, 0.0)], "r2": [(0.0, 1.5), (1.0, 1.0)]})
+    gap, a, b, t = bench.closest_approach(w)
+    assert gap == pytest.approx(1.0 - 0.8) and t == pytest.approx(0.25)
