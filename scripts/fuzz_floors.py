@@ -745,7 +745,9 @@ class Oracle:
         waiting: list[tuple[str, float, float]] = []  # (job, from, to) unassigned intervals
         busy: dict[str, list[tuple[float, float]]] = defaultdict(list)  # robot -> job intervals
         held_from: dict[tuple[str, str], float] = {}
-        for t, ev, job, robot, station in sorted(run.events, key=lambda e: e[0]):
+        # In the order recorded (a job released and assigned at one instant may carry times a
+        # rounding error apart, so sorting by time could put the assignment first).
+        for t, ev, job, robot, station in run.events:
             if ev == "released":
                 released[job] = t
                 open_since[job] = t

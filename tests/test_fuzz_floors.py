@@ -194,3 +194,17 @@ def test_a_refused_map_is_counted_as_refused(tmp_path):
     tally = fz.Tally()
     tally.add(o)
     assert "1 refused" in fz.report(tally, tmp_path, 1.0)
+
+
+def test_a_job_assigned_as_it_is_released_is_not_waiting(oracle):
+    # The engine may stamp the assignment a rounding error before the release: the oracle
+    # takes events in the order recorded, not sorted by time.
+    t = np.arange(0, 300.25, 0.25)
+    parked = (t, np.tile([15.0, 2.0], (len(t), 1)), np.zeros((len(t), 2)))
+    events = [
+        (101.2, "released", "j1", "", "b"),
+        (101.19999999999999, "assigned", "j1", "r1", "b"),
+        (102.0, "arrived", "j1", "r1", "b"),
+        (102.0, "delivered", "j1", "r1", "b"),
+    ]
+    assert oracle.judge(record({"r1": parked}, duration=300.0, events=events)) == []
