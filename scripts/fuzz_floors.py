@@ -89,6 +89,8 @@ LIVENESS_MIN_S = 180.0
 WAIT_S = 60.0
 #: Every job released this long before the end must be delivered or failed.
 DONE_GRACE_S = 150.0
+#: The engine's own safety counts (summary.json ``violations``).
+SAFETY_KEYS = ("collision", "obstacle", "speed_zone", "print_speed")
 #: Finding kinds in the order the table prints them.
 KINDS = (
     "obstacle",
@@ -890,6 +892,12 @@ class Outcome:
     wall_s: float = 0.0
     note: str = ""
 
+    @property
+    def engine_flagged(self) -> bool:
+        """Whether the engine's own checker counted a safety violation (saved even when the
+        oracle finds nothing: the two disagree)."""
+        return any(self.engine.get(k, 0) for k in SAFETY_KEYS)
+
 
 def engine_counts(summary: Mapping[str, Any]) -> dict[str, int]:
     """The engine's own counts, to print beside the oracle's."""
@@ -950,6 +958,7 @@ def run_folder(folder: Path, name: str = "", controller: str = "", note: str = "
         out.findings = Oracle(model).judge(record_of(world))
         if out.findings:
             out.status = "failed"
+        if out.findings or out.engine_flagged:
             world.write(folder / "run")
     except Exception as exc:  # noqa: BLE001 - every other exception is a finding
         out.status = "failed"
@@ -968,7 +977,7 @@ def run_case(args: tuple[int, int, str, str, bool]) -> Outcome:
     with tempfile.TemporaryDirectory(prefix="fuzz-floors-") as tmp:
         folder = case.write(Path(tmp) / case.name)
         outcome = run_folder(folder, case.name, case.controller, case.note)
-        if outcome.status == "failed":
+        if outcome.status == "failed" or outcome.engine_flagged:
             dest = Path(out_dir) / case.name
             if dest.exists():
                 shutil.rmtree(dest)
@@ -987,6 +996,8 @@ def write_findings(folder: Path, outcome: Outcome, generated_by: str = "") -> No
         "",
         "engine's own counts: " + ", ".join(f"{k} {v}" for k, v in outcome.engine.items()),
     ]
+    if outcome.engine_flagged and not outcome.findings:
+        lines += ["(the engine counted safety violations the oracle did not find)"]
     lines += [
         "",
         "rerun and judge this folder:",
@@ -1071,11 +1082,14 @@ def report(tally: Tally, out_dir: Path, elapsed: float) -> str:
         f"  contact: both {both}, oracle only {len(oracle_only)} {oracle_only[:8]}, "
         f"engine only {len(engine_only)} {engine_only[:8]}"
     )
-    oracle_only = [o.name for o in ran if _has(o, "obstacle") and not o.engine.get("obstacle")]
-    engine_only = [o.name for o in ran if o.engine.get("obstacle") and not _has(o, "obstacle")]
+    # The engine judges against the map's free space (clearance, mitred corners): compare it
+    # with the oracle's obstacle and clearance findings together.
+    near = [o for o in ran if _has(o, "obstacle") or _has(o, "clearance")]
+    oracle_only = [o.name for o in near if not o.engine.get("obstacle")]
+    engine_only = [o.name for o in ran if o.engine.get("obstacle") and o not in near]
     lines.append(
-        f"  obstacle: oracle only {len(oracle_only)} {oracle_only[:8]}, "
-        f"engine only {len(engine_only)} {engine_only[:8]}"
+        f"  obstacle/clearance: both {len(near) - len(oracle_only)}, oracle only "
+        f"{len(oracle_only)} {oracle_only[:8]}, engine only {len(engine_only)} {engine_only[:8]}"
     )
     if refused:
         lines += ["", "refused (first line of the loader's message, by kind):"]
