@@ -41,7 +41,8 @@ the issue), with the first line of its message.
 
 Prints counts per finding kind, the engine's own counts (violations, deadlocks, fallbacks,
 stuck robots) side by side, the median wall time per floor, and saves each failing case under
---out as a folder (floor.toml, scen.toml, findings.txt with the command that reruns it).
+--out as a folder (floor.toml, scen.toml, findings.txt with the command that reruns it);
+--out/results.jsonl gets one line per case as it finishes.
 
     python scripts/fuzz_floors.py --floors 1000 --seed 1 --workers 2 --out fuzz-out
     python scripts/fuzz_floors.py --controller mpc --floors 50
@@ -51,6 +52,7 @@ stuck robots) side by side, the median wall time per floor, and saves each faili
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing
 import random
@@ -1162,20 +1164,35 @@ def fuzz(
     if progress is not None:
         next(progress)
 
+    log = (out_dir / "results.jsonl").open("a", encoding="utf-8")
+
     def take(o: Outcome) -> None:
         tally.add(o)
+        # One line per case as it finishes, so a run stopped half-way can still be counted.
+        row = {
+            "case": o.name,
+            "controller": o.controller,
+            "status": o.status,
+            "findings": dict(Counter(f.kind for f in o.findings)),
+            "engine": o.engine,
+            "wall_s": round(o.wall_s, 3),
+            "refusal": o.refusal,
+        }
+        log.write(json.dumps(row) + "\n")
+        log.flush()
         if progress is not None:
             failed = sum(1 for x in tally.outcomes if x.status == "failed")
             refused = sum(1 for x in tally.outcomes if x.status == "refused")
             progress.send((failed, refused))
 
-    if workers <= 1:
-        for task in tasks:
-            take(run_case(task))
-    else:
-        with multiprocessing.get_context("spawn").Pool(workers, maxtasksperchild=20) as pool:
-            for o in pool.imap_unordered(run_case, tasks):
-                take(o)
+    with log:
+        if workers <= 1:
+            for task in tasks:
+                take(run_case(task))
+        else:
+            with multiprocessing.get_context("spawn").Pool(workers, maxtasksperchild=20) as pool:
+                for o in pool.imap_unordered(run_case, tasks):
+                    take(o)
     tally.outcomes.sort(key=lambda o: o.name)
     return tally
 
