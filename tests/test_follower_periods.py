@@ -139,8 +139,9 @@ def test_followers_never_touch_at_any_period(
     try:
         world = World(scenario, floor)
     except ScenarioError as exc:
-        # No room for the fleet round a station; a refused period would say so by name.
-        assert not exc.field.endswith("period_s"), exc
+        # No room for the fleet round a station, or a period refused by name: only one in
+        # which a robot could move more than its diameter unseen (v_max 1 m/s).
+        assert not exc.field.endswith("period_s") or period > 2 * RADIUS, exc
         assume(False)
     summary = world.run().summary
     with tempfile.TemporaryDirectory() as out:
@@ -195,7 +196,7 @@ def test_followers_of_mixed_periods_never_touch(
     try:
         world = World(scenario, floor)
     except ScenarioError as exc:
-        assert not exc.field.endswith("period_s"), exc
+        assert not exc.field.endswith("period_s") or max(periods) > 2 * RADIUS, exc
         assume(False)
     summary = world.run().summary
     with tempfile.TemporaryDirectory() as out:

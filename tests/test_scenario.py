@@ -209,3 +209,40 @@ def test_print_caps_and_tasks_make_a_schedule(write):
     assert schedule is not None and schedule.duration_s == 30.0
     # Support has no cap in this scenario: only the capped tasks become pieces.
     assert schedule.caps_from(100.0).pieces == ((100.0, 110.0, 0.5), (120.0, 130.0, 0.3))
+
+
+# --- rules across fields (check_fleet) ---------------------------------------------------------
+
+
+def _fleet(**group):
+    from dataclasses import replace
+
+    from fleet.scenario import REPO_ROOT, load_scenario
+
+    sc = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
+    return replace(sc, robots=(replace(sc.robots[0], **group),))
+
+
+def test_robots_that_could_cross_unseen_in_one_period_are_refused_by_name() -> None:
+    from fleet.scenario import check_fleet
+
+    with pytest.raises(ScenarioError) as err:
+        check_fleet(_fleet(period_s=1.0))  # 1 m per period, radius 0.4
+    assert err.value.field == "robots.period_s" and err.value.value == 1.0
+    assert "period_s <= 0.8" in str(err.value)
+    check_fleet(_fleet(period_s=0.8))  # exactly the diameter: allowed
+    check_fleet(_fleet(period_s=1.0, v_max=0.5))  # slower robots may plan less often
+    check_fleet(_fleet(period_s=1.0, count=1))  # alone (the paper's case 3 runs at 1 s)
+
+
+def test_a_robot_wider_than_the_maps_clearance_is_refused() -> None:
+    from fleet.engine import World
+    from fleet.scenario import check_fleet
+
+    with pytest.raises(ScenarioError) as err:
+        check_fleet(_fleet(radius=0.5), clearance=0.4)
+    assert err.value.field == "robots.radius" and "floor.clearance (0.4 m)" in str(err.value)
+    check_fleet(_fleet(radius=0.4), clearance=0.4)
+    check_fleet(_fleet(radius=0.5), clearance=0.0)  # a map of point robots (the paper's)
+    with pytest.raises(ScenarioError, match="robots.radius"):
+        World(_fleet(radius=0.45))  # the shop floor's clearance is 0.4

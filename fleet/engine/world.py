@@ -41,7 +41,7 @@ from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec, SolveReport, load_dispatcher
-from fleet.scenario import Scenario, parse_latency
+from fleet.scenario import Scenario, check_fleet, parse_latency
 
 __all__ = ["World", "RunResult"]
 
@@ -85,6 +85,7 @@ class World:
             parse_latency(scenario.source, "scenario.latency", scenario.latency)
         self.scenario = scenario
         self.floor = load_run_floor(scenario, floor)
+        check_fleet(scenario, self.floor.spec.clearance)
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.

@@ -429,6 +429,45 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     )
 
 
+def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
+    """The rules across fields that a fleet must keep, for a scenario read from a file, changed
+    on the command line or built in code alike (`fleet.engine.World` asks).
+
+    - Robots that see each other (more than one, `sensing_radius_m` > 0) cover at most their
+      own diameter per axis in one control period at full speed (``v_max * period_s <=
+      2 * radius``): they observe each other only at their ticks, and two robots that each move
+      further than that unseen can cross where the other will be before either sees it
+      (`scripts/fuzz_floors.py` found contacts at 1 s periods with v_max 1 and radius 0.4, for
+      both built-in controllers, and none at 0.5 s).
+    - With the floor's `clearance` given and above 0: no robot is wider than it. The free space
+      is the map's open area shrunk by the clearance, so a larger robot would overlap walls and
+      obstacles while its centre stays in the free space. (A clearance of 0 models robots as
+      points against walls, as the paper's case studies do; they still keep their radii apart
+      from each other.)
+    """
+    groups = scenario.robots
+    where = (lambda g: "robots") if len(groups) == 1 else (lambda g: f"robots[{g}]")
+    fleet = sum(g.count for g in groups) > 1 and scenario.sensing_radius_m > 0
+    for i, g in enumerate(groups):
+        if fleet and g.v_max * g.period_s > 2.0 * g.radius + 1e-9:
+            raise ScenarioError(
+                scenario.source,
+                f"{where(i)}.period_s",
+                g.period_s,
+                f"robots that see each other must not move more than their diameter per axis "
+                f"in one period: v_max * period_s = {g.v_max * g.period_s:g} m > 2 * radius = "
+                f"{2.0 * g.radius:g} m; use period_s <= {2.0 * g.radius / g.v_max:g}",
+            )
+        if clearance and g.radius > clearance + 1e-9:
+            raise ScenarioError(
+                scenario.source,
+                f"{where(i)}.radius",
+                g.radius,
+                f"wider than the map's floor.clearance ({clearance:g} m), the room the map keeps "
+                "round walls and obstacles: raise the clearance in the map or use a smaller radius",
+            )
+
+
 def parse_latency(src: str, fld: str, value: Any, *, parse_text: bool = False) -> Latency:
     """Read a latency setting: "none", "measured" or seconds >= 0 (with `parse_text`, also
     seconds written as text, as on the command line); `ScenarioError` naming `src` and `fld`
