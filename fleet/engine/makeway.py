@@ -46,6 +46,8 @@ OTHERS_M = 0.2
 RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 #: Candidate directions on each ring.
 DIRECTIONS = 24
+#: How far along its route (m) a stuck robot with nobody close looks for idle robots in the way.
+LOOK_AHEAD_M = 4.0
 #: A robot holds its spot aside for at most this many deadlock periods.
 HOLD_FACTOR = 4.0
 #: The robot made way for is past once it is this many times (both radii + `AWAY_M`) closer to
@@ -90,6 +92,9 @@ class MakeWay:
         #: and a search that found no spot, or a spot that did not help, waits a deadlock
         #: period before the next.
         self._asked: dict[tuple[str, str], float] = {}
+        #: When each stuck robot last looked for idle robots further along its route, and the
+        #: ones it found.
+        self._looked: dict[str, tuple[float, tuple[str, ...]]] = {}
 
     def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
         """Where `robot` heads now: its spot aside while it still holds one, else where its job
@@ -150,6 +155,29 @@ class MakeWay:
                 spot[1],
                 stuck.id,
             )
+
+    def in_the_way(
+        self, stuck: RobotState, goal: tuple[float, float], t: float
+    ) -> list[RobotState]:
+        """Idle robots further off than the deadlock watch looks that stand on `stuck`'s route
+        within `LOOK_AHEAD_M` of it: a controller may stop that far short of a robot parked in
+        a passage (the MPC's square round it). Looked for at most once a deadlock period; the
+        answer holds meanwhile."""
+        looked = self._looked.get(stuck.id)
+        if looked is None or t >= looked[0] + self.retry_s:
+            route = None
+            found = []
+            for o in self.robots.values():
+                if o is stuck or o.job is not None or o.faulted:
+                    continue
+                if math.hypot(o.x - stuck.x, o.y - stuck.y) > LOOK_AHEAD_M:
+                    continue
+                if route is None:
+                    route = self._route(stuck, goal)
+                if route.distance(Point(o.x, o.y)) <= stuck.spec.radius + o.spec.radius + AWAY_M:
+                    found.append(o.id)
+            looked = self._looked[stuck.id] = (t, tuple(found))
+        return [o for rid in looked[1] if (o := self.robots[rid]).job is None and not o.faulted]
 
     # -- helpers --------------------------------------------------------------------------------
     def _still_needed(self, robot: RobotState, aside: Aside, t: float) -> bool:

@@ -142,12 +142,19 @@ class Sensing:
         # At a coarse period robots stand further off (a step of a_max*dt**2 per axis that a
         # neighbour may take unseen is kept clear of): such a stand-off counts too.
         reach = BLOCKING_GAP_M + math.sqrt(2.0) * r.spec.a_max * r.spec.period**2
+        # Close by, or standing on its goal however far off this one stopped (the MPC keeps a
+        # square round a parked robot, and may stop short of it by more than `reach`).
         near = [
             o
             for o in self.robots.values()
             if o is not r
-            and math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + reach
+            and (
+                math.hypot(o.x - r.x, o.y - r.y) <= r.spec.radius + o.spec.radius + reach
+                or math.hypot(o.x - goal[0], o.y - goal[1]) <= r.spec.radius + o.spec.radius
+            )
         ]
+        if not near and r.job is not None:
+            near = self.make_way.in_the_way(r, goal, t)
         # A robot standing on this one's goal with a job of its own is no deadlock: this one
         # waits its turn there. The controller routes round the others (not round its goal).
         blockers = tuple(
