@@ -33,6 +33,8 @@ PROGRESS_M = 0.25
 #: Robots closer than the sum of their radii plus this (m), plus the stalled robot's
 #: sqrt(2)*a_max*period**2, to a stalled robot may block it.
 BLOCKING_GAP_M = 1.0
+#: A robot going home that is stuck this close (m) to it asks idle robots to make way.
+HOME_REACH_M = 3.0
 #: How long (s) a plan stays news: a neighbour whose latest plan ended longer ago than this is
 #: shown without one (assume it stays where it is).
 PLAN_STALE_S = 1.0
@@ -164,13 +166,19 @@ class Sensing:
         )
         # An idle robot never leaves by itself, on the goal or not, nor do robots with jobs
         # that wait for each other: a robot with a job asks the idle ones, and stuck ones of
-        # lower priority that are not at their own goals, to step aside. (A robot going home
-        # does not ask: that moved idle robots round and round the crowded depots for nothing.)
+        # lower priority that are not at their own goals, to step aside. A robot going home
+        # asks only once it is within `HOME_REACH_M` of it, shut out by the robots parked
+        # round it (a robot that stepped aside could not get back); asking from further off
+        # moved idle robots round and round the crowded depots for nothing.
+        asks = r.job is not None or (
+            goal == r.home and math.hypot(goal[0] - r.x, goal[1] - r.y) <= HOME_REACH_M
+        )
         movable = [
             o
             for o in near
-            if r.job is not None
+            if asks
             and not o.faulted
+            and (r.job is not None or priority[o.id] < priority[r.id])  # idle: one way only
             and (
                 o.job is None
                 or (
