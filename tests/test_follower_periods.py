@@ -98,6 +98,53 @@ def test_the_separation_check_sees_a_contact(tmp_path: Path) -> None:
     assert closest_pairs(path, {"r1": 0.4, "r2": 0.4}) == [(0.0, "r1", "r2", 0.0)]
 
 
+def head_on_world(floor: Floor, groups: tuple[RobotsConfig, ...], seed: int, gaps: list[float]):
+    """A World of followers in `groups` on `floor` with jobs both ways between stations `a` and
+    `b` (each via the other) `gaps` seconds apart, so robots meet head-on; the test is skipped
+    (`assume`) when there is no path or no room round a station. A period refused by name must
+    be one in which a robot could move more than its diameter unseen."""
+    a, b = floor.station("a"), floor.station("b")
+    try:
+        trip = PathPlanner(floor, 1.0, 0.5).path((a.x, a.y), (b.x, b.y))
+    except NoPathError:
+        assume(False)
+    at, jobs = 0.0, []
+    for i, gap in enumerate(gaps):
+        at += gap
+        via, to = ("a", "b") if i % 2 == 0 else ("b", "a")
+        jobs.append(ScriptedJob(at, to, via=(via,)))
+    scenario = Scenario(
+        name="follower-periods",
+        source="<follower period property>",
+        map=Path("<random floor>"),
+        duration_s=min(40.0 + 3.0 * trip.travel_time, 150.0),
+        seed=seed,
+        robots=groups,
+        controller=PluginChoice("follower"),
+        dispatcher=PluginChoice("greedy"),
+        jobs=JobsConfig(mode="scripted", scripted=tuple(jobs)),
+        sensing_radius_m=6.0,
+        deadlock_after_s=10.0,
+    )
+    try:
+        return World(scenario, floor)
+    except ScenarioError as exc:
+        fastest = max(g.v_max * g.period_s for g in groups)
+        assert not exc.field.endswith("period_s") or fastest > 2 * RADIUS, exc
+        assume(False)
+        raise  # unreachable: assume(False) raises
+
+
+def contacts_of(world: World) -> tuple[list, int]:
+    """The contacts in `world`'s written trajectories.csv (`closest_pairs`), and its rows."""
+    with tempfile.TemporaryDirectory() as out:
+        world.write(Path(out))
+        path = Path(out) / "trajectories.csv"
+        return closest_pairs(path, dict.fromkeys(world.robots, RADIUS)), (
+            path.read_text().count("\n") - 1
+        )
+
+
 @settings(
     max_examples=16, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
 )
@@ -111,45 +158,12 @@ def test_the_separation_check_sees_a_contact(tmp_path: Path) -> None:
 def test_followers_never_touch_at_any_period(
     floor: Floor, robots: int, period: float, seed: int, gaps: list[float]
 ) -> None:
-    a, b = floor.station("a"), floor.station("b")
-    try:
-        trip = PathPlanner(floor, 1.0, 0.5).path((a.x, a.y), (b.x, b.y))
-    except NoPathError:
-        assume(False)
-    note(f"period {period} s, {robots} robots, seed {seed}, stations {a} {b}")
-    # Jobs both ways (each via the other station) close together: robots meet head-on.
-    at, jobs = 0.0, []
-    for i, gap in enumerate(gaps):
-        at += gap
-        via, to = ("a", "b") if i % 2 == 0 else ("b", "a")
-        jobs.append(ScriptedJob(at, to, via=(via,)))
-    scenario = Scenario(
-        name="follower-periods",
-        source="<follower period property>",
-        map=Path("<random floor>"),
-        duration_s=min(40.0 + 3.0 * trip.travel_time, 150.0),
-        seed=seed,
-        robots=(RobotsConfig(count=robots, start=("a", "b"), radius=RADIUS, period_s=period),),
-        controller=PluginChoice("follower"),
-        dispatcher=PluginChoice("greedy"),
-        jobs=JobsConfig(mode="scripted", scripted=tuple(jobs)),
-        sensing_radius_m=6.0,
-        deadlock_after_s=10.0,
-    )
-    try:
-        world = World(scenario, floor)
-    except ScenarioError as exc:
-        # No room for the fleet round a station, or a period refused by name: only one in
-        # which a robot could move more than its diameter unseen (v_max 1 m/s).
-        assert not exc.field.endswith("period_s") or period > 2 * RADIUS, exc
-        assume(False)
+    note(f"period {period} s, {robots} robots, seed {seed}")
+    group = RobotsConfig(count=robots, start=("a", "b"), radius=RADIUS, period_s=period)
+    world = head_on_world(floor, (group,), seed, gaps)
     summary = world.run().summary
-    with tempfile.TemporaryDirectory() as out:
-        world.write(Path(out))
-        radii = {f"r{i:02d}": RADIUS for i in range(1, robots + 1)}
-        contacts = closest_pairs(Path(out) / "trajectories.csv", radii)
-        rows = (Path(out) / "trajectories.csv").read_text().count("\n") - 1
-    assert rows >= robots * scenario.duration_s / period  # every robot at every step
+    contacts, rows = contacts_of(world)
+    assert rows >= robots * world.scenario.duration_s / period  # every robot at every step
     assert contacts == []
     assert summary["distance_m"] >= 1.0  # not vacuous: the robots drove
 
@@ -167,42 +181,12 @@ def test_followers_of_mixed_periods_never_touch(
     floor: Floor, periods: list[float], seed: int, gaps: list[float]
 ) -> None:
     # A neighbour's period is not in its observation: each robot forecasts with its own.
-    a, b = floor.station("a"), floor.station("b")
-    try:
-        trip = PathPlanner(floor, 1.0, 0.5).path((a.x, a.y), (b.x, b.y))
-    except NoPathError:
-        assume(False)
-    note(f"periods {periods} s, seed {seed}, stations {a} {b}")
-    at, jobs = 0.0, []
-    for i, gap in enumerate(gaps):
-        at += gap
-        via, to = ("a", "b") if i % 2 == 0 else ("b", "a")
-        jobs.append(ScriptedJob(at, to, via=(via,)))
-    scenario = Scenario(
-        name="follower-mixed-periods",
-        source="<follower mixed-period property>",
-        map=Path("<random floor>"),
-        duration_s=min(40.0 + 3.0 * trip.travel_time, 150.0),
-        seed=seed,
-        robots=tuple(
-            RobotsConfig(count=2, start=("a", "b"), radius=RADIUS, period_s=p) for p in periods
-        ),
-        controller=PluginChoice("follower"),
-        dispatcher=PluginChoice("greedy"),
-        jobs=JobsConfig(mode="scripted", scripted=tuple(jobs)),
-        sensing_radius_m=6.0,
-        deadlock_after_s=10.0,
+    note(f"periods {periods} s, seed {seed}")
+    groups = tuple(
+        RobotsConfig(count=2, start=("a", "b"), radius=RADIUS, period_s=p) for p in periods
     )
-    try:
-        world = World(scenario, floor)
-    except ScenarioError as exc:
-        assert not exc.field.endswith("period_s") or max(periods) > 2 * RADIUS, exc
-        assume(False)
+    world = head_on_world(floor, groups, seed, gaps)
     summary = world.run().summary
-    with tempfile.TemporaryDirectory() as out:
-        world.write(Path(out))
-        contacts = closest_pairs(
-            Path(out) / "trajectories.csv", dict.fromkeys(world.robots, RADIUS)
-        )
+    contacts, _ = contacts_of(world)
     assert contacts == []
     assert summary["distance_m"] >= 1.0
