@@ -361,3 +361,24 @@ def test_the_follower_passes_the_conformance_check(gain: float) -> None:
 def test_is_registered_as_follower() -> None:
     follower = load_controller("follower")
     assert isinstance(follower, PathFollower) and follower.gain == 0.5
+
+
+def test_a_tracking_command_after_which_braking_would_leave_the_floor_is_held_back() -> None:
+    """Braking is the follower's answer to everything, so each tracking command is sent only if
+    braking after it stays in the free space (issue 16: a brake ran 3 cm into a wall)."""
+    from fleet.plugins import Command
+    from fleet_plugins.follower.guard import Guard
+
+    guard = Guard(SPEC, FLOOR, margin_m=0.1, yield_s=2.0, hold_steps=8)
+    x0, _, x1, _ = FLOOR.free_space.bounds
+    # 0.5 m short of the wall at x = 20, at 1 m/s towards it: a stop takes 1 m.
+    towards = Observation("r1", 0, 0.0, x1 - 0.5, 5.0, 1.0, 0.0, goal=(x1 - 0.1, 5.0))
+    assert not guard.stops_inside(towards, Command(0.0, 0.0, ControlStatus.OK))
+    # The same speed along the wall, or 2 m short: braking stays on the floor.
+    along = Observation("r1", 0, 0.0, x1 - 0.5, 5.0, 0.0, 1.0, goal=(x1 - 0.5, 8.0))
+    assert guard.stops_inside(along, Command(0.0, 0.0, ControlStatus.OK))
+    far = Observation("r1", 0, 0.0, x1 - 2.0, 5.0, 1.0, 0.0, goal=(x1 - 0.1, 5.0))
+    assert guard.stops_inside(far, Command(0.0, 0.0, ControlStatus.OK))
+    # At rest nothing can go wrong.
+    rest = Observation("r1", 0, 0.0, x0 + 0.01, 5.0, 0.0, 0.0, goal=(5.0, 5.0))
+    assert guard.stops_inside(rest, Command(0.0, 0.0, ControlStatus.OK))

@@ -222,6 +222,8 @@ class PathFollower(Controller):
         self._guard = Guard(
             context.spec, self._planners.floor, self.margin_m, self.yield_s, hold_steps
         )
+        #: Tracking commands held back because braking after them would leave the free space.
+        self.brakes_for_walls = 0
         self._clear()
 
     def _clear(self) -> None:
@@ -287,6 +289,9 @@ class PathFollower(Controller):
             stride=self._plan_stride,
         )
         if obs.neighbours and not self._guard.may_go(obs, track, cmd, self._cap):
+            return self._hold(obs, track)
+        if not self._guard.stops_inside(obs, cmd):
+            self.brakes_for_walls += 1
             return self._hold(obs, track)
         self._waiting = False
         return cmd

@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
+from shapely.geometry import LineString
+
 from fleet.plugins import Command, Observation, RobotSpec
 from fleet.plugins.robot import clip
 from fleet_plugins.follower.track import Track
@@ -95,6 +97,21 @@ class Guard:
                 if f.robot in self.detour.clearance and f.priority < obs.priority
             }
         return stops_clear(stop + held, forecasts, spec.radius, self.margin_m, now, gaps)
+
+    def stops_inside(self, obs: Observation, cmd: Command) -> bool:
+        """Whether, after `cmd`, full braking along the line of travel keeps the robot in the
+        floor's free space. Checked before every tracking command, so braking (the robot's
+        answer to everything else) can never carry it into a wall: the brake it may need next
+        tick was checked this tick. Tracking alone keeps to the reference, but a brake from
+        the speed of a bend's approach ran 3 cm into a wall in the floor fuzz."""
+        spec = self.spec
+        dt, a_max = spec.period, spec.a_max
+        vx, vy = obs.vx + dt * clip(cmd.ax, a_max), obs.vy + dt * clip(cmd.ay, a_max)
+        stop = braking_path(obs.t + dt, obs.x + dt * obs.vx, obs.y + dt * obs.vy, vx, vy, dt, a_max)
+        points = [(obs.x, obs.y)] + [(x, y) for _, x, y in stop]
+        if all(p == points[0] for p in points):
+            return True
+        return bool(self.floor.free_space_tolerant.covers(LineString(points)))
 
     # -- rule 3 -----------------------------------------------------------------------------------
     def route(self, obs: Observation) -> Detour | None:
