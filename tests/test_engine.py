@@ -14,7 +14,7 @@ MAP = """
 name = "test hall"
 boundary = [[0, 0], [30, 0], [30, 16], [0, 16]]
 default_v_max = 1.0
-clearance = 0.3
+clearance = 0.4
 
 [[obstacles]]
 name = "press"
