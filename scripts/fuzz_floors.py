@@ -457,11 +457,17 @@ def generate_case(seed: int, index: int, controller: str = "both", quick: bool =
         scen["print"] = {
             "caps": {k: round(rng.uniform(0.15, 0.7), 2) for k in ("contour", "infill", "support")}
         }
-    # A fleet moves at most its diameter per axis in a period (`fleet.scenario.check_fleet`):
-    # most cases keep to that; the rest check that the engine refuses them by name.
+    # A fleet moves at most its diameter per axis in a period (`fleet.scenario.check_fleet`)
+    # and sees far enough to stop: most cases keep to that; the rest check the refusal.
     fastest = math.floor(100 * 2 * radius / scen["robots"]["v_max"]) / 100
     if count > 1 and period > fastest and rng.random() < 0.9:
         period = scen["robots"]["period_s"] = max(fastest, 0.1)
+    # ... and sees far enough to stop for each other.
+    r = scen["robots"]
+    needed = 2 * radius + r["v_max"] ** 2 / r["a_max"] + 2 * r["v_max"] * r["period_s"]
+    sensing = scen["scenario"]["sensing_radius_m"]
+    if count > 1 and sensing < needed and rng.random() < 0.9:
+        scen["scenario"]["sensing_radius_m"] = math.ceil(10 * needed) / 10
     note = (
         f"{controller}, {count} robot(s) r={radius} (clearance {clearance}), period {period} s, "
         f"{duration} s, {len(obstacles)} obstacles, {len(zones)} zones, {len(stations)} stations, "

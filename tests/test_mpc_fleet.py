@@ -192,55 +192,6 @@ def test_equal_priorities_are_ordered_by_robot_id() -> None:
     assert set(run.controller.separation_robots) == {()}
 
 
-def arriving(t: float) -> tuple[float, float]:
-    """A robot driving in at full speed from the north-east and braking to a stop at (3, 5), 1 m
-    east of the MPC robot's start: on its way out (issue 16, 40 robots: r35 coming home to the
-    depot slot next to r15 as r15 set off towards it)."""
-    x0, y0, x1, y1 = 6.0, 7.0, 3.0, 5.0
-    length = math.hypot(x1 - x0, y1 - y0)  # 3.6 m: 2.6 m at 1 m/s, then 1 m of braking
-    if t <= length - 1.0:
-        s = t
-    else:
-        tb = min(t - (length - 1.0), 2.0)
-        s = length - 1.0 + tb - 0.25 * tb * tb
-    return (x0 + s / length * (x1 - x0), y0 + s / length * (y1 - y0))
-
-
-def test_a_robot_heading_for_the_plan_is_kept_clear_of_before_robots_parked_beside_it() -> None:
-    """`max_neighbours` (3) robots parked 1-1.4 m away, beside the way out, must not crowd out
-    a fourth one 3.6 m away that is driving into the robot's way: the robots kept clear of are
-    the ones the robot's intended path (reference window, previous plan) comes nearest to."""
-    controller = MPCController(horizon=12)
-    controller.reset(ControllerContext("r1", SPEC, HALL, PathPlanner(HALL, 1.0, 0.5)))
-    beside = {"r2": (1.0, 5.0), "r3": (1.0, 6.0), "r4": (1.0, 4.0)}  # the depot's next slots
-    robot = DoubleIntegrator(SPEC.period, SPEC.a_max)
-    p, v, t = np.array(START), np.zeros(2), 0.0
-    gaps, before = [], []
-    for tick in range(40):
-        dt = SPEC.period
-        near = [
-            Neighbour(r, x, y, 0.0, 0.0, 0.4, -1, ((t, x, y), (t + 12 * dt, x, y)))
-            for r, (x, y) in beside.items()
-        ]
-        x, y = arriving(t)
-        x1, y1 = arriving(t + dt)
-        plan = tuple((t + k * dt, *arriving(t + k * dt)) for k in range(13))
-        near.append(Neighbour("r5", x, y, (x1 - x) / dt, (y1 - y) / dt, 0.4, -1, plan))
-        obs = Observation(
-            "r1", tick, t, *map(float, p), *map(float, v), goal=GOAL, neighbours=tuple(near)
-        )
-        before.append(math.dist(p, arriving(t)))
-        cmd = controller.compute(obs)
-        x, y, vx, vy = robot.step(*p, *v, cmd.ax, cmd.ay)
-        p, v, t = np.array([x, y]), np.array([vx, vy]), t + dt
-        gaps.append(math.dist(p, arriving(t)))
-    assert min(gaps) >= CONTACT - 1e-6
-    # Kept clear of whenever it was close (farther off, it yields to r1: r1 outranks it).
-    close = [i for i, d in enumerate(before) if d < 3.0]
-    assert close and all("r5" in controller.separation_robots[i] for i in close)
-    assert p[0] > 5.0  # and it got past
-
-
 # --- the fallback ---------------------------------------------------------------------------------
 
 

@@ -1,5 +1,6 @@
 """Scenario files: defaults, relative map paths, and a clear error for each bad input."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -246,3 +247,15 @@ def test_a_robot_wider_than_the_maps_clearance_is_refused() -> None:
     check_fleet(_fleet(radius=0.5), clearance=0.0)  # a map of point robots (the paper's)
     with pytest.raises(ScenarioError, match="robots.radius"):
         World(_fleet(radius=0.45))  # the shop floor's clearance is 0.4
+
+
+def test_robots_that_see_each_other_too_late_to_stop_are_refused() -> None:
+    from fleet.scenario import check_fleet
+
+    # 2 * 0.4 + 1**2 / 0.5 + 2 * 1 * 0.25 = 3.3 m
+    with pytest.raises(ScenarioError) as err:
+        check_fleet(replace(_fleet(), sensing_radius_m=3.2))
+    assert err.value.field == "scenario.sensing_radius_m" and "3.3 m" in str(err.value)
+    check_fleet(replace(_fleet(), sensing_radius_m=3.3))
+    check_fleet(replace(_fleet(count=1), sensing_radius_m=1.0))  # alone
+    check_fleet(replace(_fleet(), sensing_radius_m=0.0))  # blind: robots ignore each other

@@ -439,6 +439,11 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
       further than that unseen can cross where the other will be before either sees it
       (`scripts/fuzz_floors.py` found contacts at 1 s periods with v_max 1 and radius 0.4, for
       both built-in controllers, and none at 0.5 s).
+    - Robots that see each other see far enough to stop for each other: `sensing_radius_m`
+      is at least ``2 * radius + v_max**2 / a_max + 2 * v_max * period_s`` for every group
+      (two robots closing head-on at full speed brake in ``v_max**2 / a_max`` between them,
+      after a period to see and a period to act). The floor fuzz had two MPC robots at 1 s
+      periods drive through each other from outside a 3.3 m sensing radius, never seen.
     - With the floor's `clearance` given and above 0: no robot is wider than it. The free space
       is the map's open area shrunk by the clearance, so a larger robot would overlap walls and
       obstacles while its centre stays in the free space. (A clearance of 0 models robots as
@@ -457,6 +462,16 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
                 f"robots that see each other must not move more than their diameter per axis "
                 f"in one period: v_max * period_s = {g.v_max * g.period_s:g} m > 2 * radius = "
                 f"{2.0 * g.radius:g} m; use period_s <= {2.0 * g.radius / g.v_max:g}",
+            )
+        needed = 2.0 * g.radius + g.v_max**2 / g.a_max + 2.0 * g.v_max * g.period_s
+        if fleet and scenario.sensing_radius_m < needed - 1e-9:
+            raise ScenarioError(
+                scenario.source,
+                "scenario.sensing_radius_m",
+                scenario.sensing_radius_m,
+                f"robots that see each other must see far enough to stop for each other: at "
+                f"least 2 * radius + v_max**2 / a_max + 2 * v_max * period_s = {needed:.3g} m "
+                f"for {where(i)}",
             )
         if clearance and g.radius > clearance + 1e-9:
             raise ScenarioError(

@@ -44,11 +44,6 @@ __all__ = ["MPCController"]
 #: solve: the optimum there is to stay.
 PARKED_SPEED = 1e-6
 PARKED_DISTANCE = 1e-3
-#: At rest (per-axis speed to this, m/s) with a first input this small (m/s^2) the robot stands
-#: still; after this long (s) of it in a row, away from its goal, it plans a new trip from there.
-STANDSTILL_SPEED = 1e-3
-STANDSTILL_INPUT = 1e-3
-STANDSTILL_S = 3.0
 #: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
 PLAN_MATCH = 1e-6
 
@@ -80,8 +75,8 @@ class MPCController(Controller):
     (`separation`). The margin is soft (a heavy cost), contact is not. With
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
     on a tie, the smaller robot id), and of the robots it outranks only when they are parked
-    for the whole horizon or close (`neighbours` says why). At most ``max_neighbours`` robots
-    are constrained: those the robot's reference window and previous plan come nearest to.
+    for the whole horizon or close (`neighbours` says why). At most ``max_neighbours`` robots,
+    the nearest, are constrained.
 
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
     error) the controller falls back: the previous plan shifted by one step if the robot is on
@@ -201,10 +196,6 @@ class MPCController(Controller):
         self.separation_robots: list[tuple[str, ...]] = []
         #: Quadratic refinements that were not optimal (their MILP input was applied instead).
         self.qp_failures = 0
-        #: Solves in a row whose plan stands still away from the goal, and the new trips that
-        #: standing still started.
-        self._standstill = 0
-        self.standstill_replans = 0
         self._qp_highs: highspy.Highs | None = None
 
     # -- the control law ------------------------------------------------------------------------
@@ -244,7 +235,6 @@ class MPCController(Controller):
         report = SolveReport(solution.outcome, solution.solver_s, step_s)
         if solution.outcome.usable:
             assert solution.p is not None and solution.u is not None
-            self._watch_standstill(obs, solution.u[0])
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
             dt = spec.period
             plan = tuple(
@@ -254,23 +244,6 @@ class MPCController(Controller):
             u = solution.u[0]
             return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
         return self._fallback(obs, report)
-
-    def _watch_standstill(self, obs: Observation, u0: np.ndarray) -> None:
-        """Count the solves that leave the robot at rest away from its goal (their first input
-        is nil); after `STANDSTILL_S` of them in a row, plan a new trip from where it stands at
-        the next tick. A trip's reference runs on in time while the robot waits (for a robot
-        crossing, say), and a linear cost can then put off setting out again and again: each
-        solve's plan moves later in the horizon, never now (issue 16: a robot stood 40 s in
-        open floor, every solve OK, each plan 1.26 m long)."""
-        moving = max(abs(obs.vx), abs(obs.vy)) > STANDSTILL_SPEED
-        if moving or float(np.max(np.abs(u0))) > STANDSTILL_INPUT:
-            self._standstill = 0
-            return
-        self._standstill += 1
-        if self._standstill * self.context.spec.period >= STANDSTILL_S:
-            self._standstill = 0
-            self._model = None  # a new trip, hence a new reference, from here next tick
-            self.standstill_replans += 1
 
     def _parked(self, obs: Observation, goal: tuple[float, float]) -> bool:
         """At rest (to `PARKED_SPEED`) within `PARKED_DISTANCE` of the goal, with no robot closer
@@ -372,10 +345,6 @@ class MPCController(Controller):
         spec = self.context.spec
         assert self._trip is not None
         p_lo, p_hi = region_bounds(self._trip, self.horizon, data)
-        # Where the robot means to go: the reference window, and the previous plan if on it.
-        paths = [data.p_ref]
-        if self._on_plan(obs) and self._last is not None and self._last.p is not None:
-            paths.append(np.vstack([self._last.p[1:], self._last.p[-1:]]))
         nearest = robots_to_avoid(
             obs,
             spec,
@@ -384,7 +353,6 @@ class MPCController(Controller):
             p_hi,
             margin=self.separation_margin_m,
             respect_priority=self.respect_priority,
-            paths=paths,
         )
         chosen = tuple(nearest[: self.max_neighbours])
         if not chosen:

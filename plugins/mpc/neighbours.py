@@ -8,18 +8,11 @@ one outranks it; a close one may carry on or stop to let this one pass, so the p
 of the box round both. The higher one thus keeps its course, and the lower one has a plan to
 avoid that does not move away as it yields (when both yield, both swerve alike and meet again:
 measured head-on). `separation` turns the chosen ones into rows.
-
-Which ones, when more need it than a solve takes (``max_neighbours``): those the robot's
-intended path (its reference window, its previous plan) comes nearest to, not the nearest now.
-Robots parked 1 m apart in a depot are each other's nearest; ranked by distance now, they
-crowded out a robot driving into a departing robot's way from 2.5 m (issue 16: 40 robots, r15
-set off into r35 coming home, and they passed through each other).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
 
@@ -39,16 +32,9 @@ def robots_to_avoid(
     *,
     margin: float,
     respect_priority: bool,
-    paths: Sequence[np.ndarray] = (),
 ) -> list[Obstacle]:
-    """The robots of `obs.neighbours` the plan must keep clear of, most pressing first;
-    `p_lo`, `p_hi` bound where each point of the plan can be.
-
-    `paths` (each ``(N+1, 2)``, steps 0..N) are where the robot means to go: its reference
-    window and previous plan. The robots whose box one of them enters come first, then the
-    others by how near those paths come to their boxes (`path_gap`); ties by distance now,
-    then robot id. Without `paths`, nearest first.
-    """
+    """The robots of `obs.neighbours` the plan must keep clear of, nearest first (on a tie,
+    by robot id); `p_lo`, `p_hi` bound where each point of the plan can be."""
     N, dt = horizon, spec.period
     # Within this, two robots at full speed could not stop before they met.
     near = spec.v_max**2 / spec.a_max + 2.0 * spec.v_max * dt
@@ -68,18 +54,9 @@ def robots_to_avoid(
             ob = Obstacle.between(n.robot, centres, stop, half, margin)
         if not reaches(ob, p_lo, p_hi):
             continue
-        picked.append((max(path_gap(ob, paths), 0.0), distance, n.robot, ob))
-    picked.sort(key=lambda item: item[:3])
-    return [item[3] for item in picked]
-
-
-def path_gap(obstacle: Obstacle, paths: Sequence[np.ndarray]) -> float:
-    """How far (m, per axis: negative inside) the nearest of `paths` keeps from `obstacle`'s
-    box over steps 1..N (0 with no paths)."""
-    if not paths:
-        return 0.0
-    c, h = obstacle.centres[1:], obstacle.half[1:]
-    return min(float(np.min(np.max(np.abs(p[1:] - c) - h, axis=1))) for p in paths)
+        picked.append((distance, n.robot, ob))
+    picked.sort(key=lambda item: (item[0], item[1]))
+    return [ob for _, _, ob in picked]
 
 
 def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:
