@@ -4,7 +4,8 @@ An observation holds the robot's state, its goal, the print caps ahead, its prio
 neighbours: the nearest robots within the sensing radius, each with the part of its latest plan
 still ahead (thinned to `PLAN_SPACING_S`). Sensing also watches each robot's progress towards its
 goal: a robot that has made none for `Scenario.deadlock_after_s` with robots close by is blocked
-by them; its observation names them and its priority is raised.
+by them; its observation names them and its priority is raised, and the robots in its way that
+would never leave by themselves are asked to step aside (`fleet.engine.makeway`).
 """
 
 from __future__ import annotations
