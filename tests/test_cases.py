@@ -126,4 +126,3 @@ def test_a_robot_that_moves_is_not_reported_stuck() -> None:
     s = summary_of("reference_selfcheck")
     (robot,) = s["per_robot"]
     assert s["stuck_robots"] == [] and robot["goal_errors"] == 0 < robot["goal_commands"]
-

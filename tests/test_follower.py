@@ -370,15 +370,21 @@ def test_a_tracking_command_after_which_braking_would_leave_the_floor_is_held_ba
     from fleet_plugins.follower.guard import Guard
 
     guard = Guard(SPEC, FLOOR, margin_m=0.1, yield_s=2.0, hold_steps=8)
+
+    def brakes_inside(obs: Observation) -> bool:  # after a command that keeps the speed
+        return guard.stops_inside(
+            obs, guard.braking_after(obs, Command(0.0, 0.0, ControlStatus.OK))
+        )
+
     x0, _, x1, _ = FLOOR.free_space.bounds
     # 0.5 m short of the wall at x = 20, at 1 m/s towards it: a stop takes 1 m.
     towards = Observation("r1", 0, 0.0, x1 - 0.5, 5.0, 1.0, 0.0, goal=(x1 - 0.1, 5.0))
-    assert not guard.stops_inside(towards, Command(0.0, 0.0, ControlStatus.OK))
+    assert not brakes_inside(towards)
     # The same speed along the wall, or 2 m short: braking stays on the floor.
     along = Observation("r1", 0, 0.0, x1 - 0.5, 5.0, 0.0, 1.0, goal=(x1 - 0.5, 8.0))
-    assert guard.stops_inside(along, Command(0.0, 0.0, ControlStatus.OK))
+    assert brakes_inside(along)
     far = Observation("r1", 0, 0.0, x1 - 2.0, 5.0, 1.0, 0.0, goal=(x1 - 0.1, 5.0))
-    assert guard.stops_inside(far, Command(0.0, 0.0, ControlStatus.OK))
+    assert brakes_inside(far)
     # At rest nothing can go wrong.
     rest = Observation("r1", 0, 0.0, x0 + 0.01, 5.0, 0.0, 0.0, goal=(5.0, 5.0))
-    assert guard.stops_inside(rest, Command(0.0, 0.0, ControlStatus.OK))
+    assert brakes_inside(rest)

@@ -93,7 +93,7 @@ class RobotState:
     boosted_until: float = -math.inf
     #: Stuck (blocked by robots, or by idle robots it waits for to step aside), reported once.
     stalled: bool = False
-    #: Idle, it steps aside for a robot it blocked (`fleet.engine.makeway.Aside`).
+    #: Where it waits off the route of a robot it blocked (`fleet.engine.makeway.Aside`).
     aside: Aside | None = None
     #: Compute latency (`Scenario.latency`): inputs waiting to take effect as ``(effect time,
     #: ax, ay)`` in order of effect (clipped to a_max), the input in force (the last one that

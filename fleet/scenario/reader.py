@@ -451,13 +451,13 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
       from each other.)
     """
     groups = scenario.robots
-    where = (lambda g: "robots") if len(groups) == 1 else (lambda g: f"robots[{g}]")
     fleet = sum(g.count for g in groups) > 1 and scenario.sensing_radius_m > 0
     for i, g in enumerate(groups):
+        where = "robots" if len(groups) == 1 else f"robots[{i}]"
         if fleet and g.v_max * g.period_s > 2.0 * g.radius + 1e-9:
             raise ScenarioError(
                 scenario.source,
-                f"{where(i)}.period_s",
+                f"{where}.period_s",
                 g.period_s,
                 f"robots that see each other must not move more than their diameter per axis "
                 f"in one period: v_max * period_s = {g.v_max * g.period_s:g} m > 2 * radius = "
@@ -471,12 +471,12 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
                 scenario.sensing_radius_m,
                 f"robots that see each other must see far enough to stop for each other: at "
                 f"least 2 * radius + v_max**2 / a_max + 2 * v_max * period_s = {needed:.3g} m "
-                f"for {where(i)}",
+                f"for {where}",
             )
         if clearance and g.radius > clearance + 1e-9:
             raise ScenarioError(
                 scenario.source,
-                f"{where(i)}.radius",
+                f"{where}.radius",
                 g.radius,
                 f"wider than the map's floor.clearance ({clearance:g} m), the room the map keeps "
                 "round walls and obstacles: raise the clearance in the map or use a smaller radius",

@@ -288,9 +288,10 @@ class PathFollower(Controller):
             steps=self._plan_steps,
             stride=self._plan_stride,
         )
-        if obs.neighbours and not self._guard.may_go(obs, track, cmd, self._cap):
+        stop = self._guard.braking_after(obs, cmd)
+        if obs.neighbours and not self._guard.may_go(obs, track, stop, self._cap):
             return self._hold(obs, track)
-        if not self._guard.stops_inside(obs, cmd):
+        if not self._guard.stops_inside(obs, stop):
             self.brakes_for_walls += 1
             return self._hold(obs, track)
         self._waiting = False

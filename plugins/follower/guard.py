@@ -54,15 +54,22 @@ class Guard:
         self._blockers: list[tuple[str, float, float, float]] = []
 
     # -- rules 1 and 2 ----------------------------------------------------------------------------
-    def may_go(self, obs: Observation, track: Track, cmd: Command, cap: float) -> bool:
-        """Whether the robot may send `cmd`, the tracking command of `track` planned at speed
-        `cap` (rules 1 and 2 of `PathFollower`); if not, it must hold."""
+    def braking_after(self, obs: Observation, cmd: Command) -> list[tuple[float, float, float]]:
+        """Full braking after `cmd`: the next state is fixed but for this command's velocity,
+        and from there the robot brakes along its line of travel (`braking_path`)."""
+        dt, a_max = self.spec.period, self.spec.a_max
+        vx, vy = obs.vx + dt * clip(cmd.ax, a_max), obs.vy + dt * clip(cmd.ay, a_max)
+        return braking_path(obs.t + dt, obs.x + dt * obs.vx, obs.y + dt * obs.vy, vx, vy, dt, a_max)
+
+    def may_go(
+        self, obs: Observation, track: Track, stop: list[tuple[float, float, float]], cap: float
+    ) -> bool:
+        """Whether the robot may send the tracking command of `track` planned at speed `cap`,
+        after which it would brake along `stop` (`braking_after`; rules 1 and 2 of
+        `PathFollower`); if not, it must hold."""
         spec = self.spec
         dt, a_max = spec.period, spec.a_max
         forecasts = [Forecast.of(n, obs.t, dt, a_max) for n in obs.neighbours]
-        # The next state is fixed but for this command's velocity; from there, full braking.
-        vx, vy = obs.vx + dt * clip(cmd.ax, a_max), obs.vy + dt * clip(cmd.ay, a_max)
-        stop = braking_path(obs.t + dt, obs.x + dt * obs.vx, obs.y + dt * obs.vy, vx, vy, dt, a_max)
         # Where it would stop must stay clear a while too: stopping right in the way of a
         # robot about to pass is no stop in time.
         t_stop, x_stop, y_stop = stop[-1]
@@ -98,16 +105,12 @@ class Guard:
             }
         return stops_clear(stop + held, forecasts, spec.radius, self.margin_m, now, gaps)
 
-    def stops_inside(self, obs: Observation, cmd: Command) -> bool:
-        """Whether, after `cmd`, full braking along the line of travel keeps the robot in the
+    def stops_inside(self, obs: Observation, stop: list[tuple[float, float, float]]) -> bool:
+        """Whether braking along `stop` (`braking_after` a command) keeps the robot in the
         floor's free space. Checked before every tracking command, so braking (the robot's
         answer to everything else) can never carry it into a wall: the brake it may need next
         tick was checked this tick. Tracking alone keeps to the reference, but a brake from
         the speed of a bend's approach ran 3 cm into a wall in the floor fuzz."""
-        spec = self.spec
-        dt, a_max = spec.period, spec.a_max
-        vx, vy = obs.vx + dt * clip(cmd.ax, a_max), obs.vy + dt * clip(cmd.ay, a_max)
-        stop = braking_path(obs.t + dt, obs.x + dt * obs.vx, obs.y + dt * obs.vy, vx, vy, dt, a_max)
         points = [(obs.x, obs.y)] + [(x, y) for _, x, y in stop]
         if all(p == points[0] for p in points):
             return True
