@@ -79,6 +79,11 @@ class RobotState:
     #: Its agent is gone (lost or left): the robot is braked and takes no jobs until an agent
     #: hosts it again.
     faulted: bool = False
+    #: Broken down (`[breakdowns]`): braked where it stopped, takes no jobs until repaired.
+    broken: bool = False
+    #: Standing at a charger taking charge (`[battery]`); the charging policy says whether it
+    #: may be given a job meanwhile.
+    charging: bool = False
     #: Progress watch for deadlock detection: closest distance to the current goal so far, and
     #: when it last improved by `PROGRESS_M`.
     best_gap: float = math.inf
@@ -145,6 +150,11 @@ class RobotState:
         """Every print-cap piece this robot has been under so far (for the safety checker)."""
         current = self.job.caps.pieces if self.job is not None else ()
         return CapSchedule(tuple(self.past_caps) + current)
+
+    @property
+    def in_service(self) -> bool:
+        """Whether it can take jobs and move: its agent is there and it is not broken down."""
+        return not (self.faulted or self.broken)
 
     @property
     def goal(self) -> tuple[float, float] | None:
