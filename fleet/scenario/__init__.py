@@ -22,6 +22,7 @@ from fleet.scenario.reader import (
     load_scenario,
     parse_latency,
     parse_scenario,
+    parse_with_settings,
 )
 from fleet.scenario.spec import ScenarioFile
 
@@ -38,6 +39,7 @@ __all__ = [
     "check_fleet",
     "load_scenario",
     "parse_scenario",
+    "parse_with_settings",
     "default_scenario",
     "REPO_ROOT",
     "ScenarioFile",

@@ -1,0 +1,200 @@
+"""Running a study from code: its cells' KPIs as one typed table, and any run table of every
+cell as one table with the cell's grid values in front."""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable, Iterator
+from concurrent.futures import Executor
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fleet.api.runs import RunResult, open_run
+from fleet.errors import FleetError
+from fleet.study.sweep import Study, SweepResult, load_study, run_study
+
+__all__ = ["SweepResults", "sweep"]
+
+#: What `sweep` takes as `progress`: False, True (a bar on stderr) or a callable given
+#: ``(record, done, total)`` per cell finished or reused.
+SweepProgress = bool | Callable[[dict[str, Any], int, int], None]
+
+
+@dataclass
+class SweepResults:
+    """A study's cells after `sweep`: one row per cell, its grid values and its KPIs.
+
+    ``pandas.DataFrame(results.table())`` is the results table (one row per cell);
+    ``pandas.DataFrame(results.table("jobs"))`` every cell's jobs, each row led by its cell's
+    id, seed and grid values.
+    """
+
+    study: Study
+    #: `fleet.study.sweep.run_study`'s own account (records, counts, results.csv).
+    sweep: SweepResult
+    _tmp: tempfile.TemporaryDirectory | None = field(default=None, repr=False)
+
+    @property
+    def out_dir(self) -> Path:
+        """The study directory: results.csv, study.json and ``cells/<id>/`` per cell."""
+        return self.sweep.out_dir
+
+    @property
+    def ok(self) -> int:
+        """Cells that ran to the end (this time or in an earlier sweep into the folder)."""
+        return self.sweep.ok
+
+    @property
+    def failed(self) -> int:
+        """Cells whose run raised (their ``error`` column says what)."""
+        return self.sweep.failed
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """One dict per cell in grid order: ``cell``, ``index``, ``seed``, one key per grid axis,
+        ``status``, ``error``, ``wall_s``, ``run_dir``, then every KPI the cell's record holds.
+
+        A grid axis of numbers, text or booleans keeps its values (``robots`` is 2, not "2");
+        plugin, map and table axes give their labels.
+        """
+        rows = []
+        for record in self.sweep.records:
+            row: dict[str, Any] = {k: record[k] for k in ("cell", "index", "seed")}
+            row.update(self._grid_values(record["params"]))
+            row.update({k: record.get(k) for k in ("status", "error", "wall_s", "run_dir")})
+            row.update(record.get("kpis") or {})
+            rows.append(row)
+        return rows
+
+    def table(self, name: str = "results") -> dict[str, list[Any]]:
+        """Typed columns ``{column: [value, ...]}``: ``"results"`` for `rows`; any other name
+        (``"jobs"``, ``"events"``, ...) for that table of every cell that ran, one after the
+        other, each row led by ``cell``, ``seed`` and the grid values. A cell without the table
+        (no violations, say) adds no rows; columns only some cells have are None elsewhere."""
+        if name == "results":
+            return _columns(self.rows)
+        rows = []
+        for record in self.sweep.records:
+            if record["status"] != "ok":
+                continue
+            run = self.run(record["cell"])
+            if name not in run.tables:
+                continue
+            lead = {"cell": record["cell"], "seed": record["seed"]}
+            lead.update(self._grid_values(record["params"]))
+            rows += [lead | row for row in run.rows(name)]
+        return _columns(rows)
+
+    def run(self, cell: str | int) -> RunResult:
+        """The run of one cell, by id or index, with its summary and tables.
+
+        Raises
+        ------
+        FleetError
+            If the study has no such cell, or it failed (its error is in the message).
+        """
+        for record in self.sweep.records:
+            if cell in (record["cell"], record["index"]):
+                if record["status"] != "ok":
+                    raise FleetError(f"cell {record['cell']} failed: {record['error']}")
+                return open_run(self.out_dir / record["run_dir"])
+        raise FleetError(
+            f"no cell {cell!r} in study {self.study.name!r} (ids: "
+            f"{', '.join(r['cell'] for r in self.sweep.records)}; or an index from 0)"
+        )
+
+    def _grid_values(self, params: dict[str, str]) -> dict[str, Any]:
+        values: dict[str, Any] = {}
+        for axis in self.study.axes:
+            label = params.get(axis.name)
+            value = next((v.value for v in axis.values if v.label == label), label)
+            plain = isinstance(value, int | float | bool | str) and axis.name != "map"
+            values[axis.name] = value if plain else label
+        return values
+
+
+def sweep(
+    study: Study | str | Path,
+    out_dir: str | Path | None = None,
+    *,
+    jobs: int | None = None,
+    progress: SweepProgress = False,
+    retry_failed: bool = True,
+    executor: Executor | None = None,
+) -> SweepResults:
+    """Run a study, as ``fleet sweep`` does: every cell without a finished result in `out_dir`.
+
+    Parameters
+    ----------
+    study:
+        A study file (see ``studies/throughput.toml``) or a `Study` from
+        `fleet.study.sweep.load_study`.
+    out_dir:
+        The study directory, resumed when it holds earlier cells; None: a temporary one,
+        removed when the result is no longer used.
+    jobs:
+        Cells run at once, each in its own process (default: one per CPU core).
+    progress:
+        True: a bar on stderr; a callable: ``progress(record, done, total)`` per cell.
+    retry_failed:
+        Run cells that failed in an earlier sweep again (default); False keeps their records.
+    executor:
+        Run the cells there instead (e.g. `fleet.study.sweep.dask_executor`'s).
+
+    Raises
+    ------
+    StudyError
+        If the study file is wrong, naming the file, the field and the value.
+    """
+    if not isinstance(study, Study):
+        study = load_study(study)
+    tmp = None
+    if out_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix=f"fleet-{study.name}-")
+        out_dir = tmp.name
+    with _progress(progress, len(study.cells), study.name) as report:
+        result = run_study(
+            study,
+            out_dir,
+            executor=executor,
+            workers=jobs,
+            progress=report,
+            retry_failed=retry_failed,
+        )
+    return SweepResults(study, result, tmp)
+
+
+def _columns(rows: list[dict[str, Any]]) -> dict[str, list[Any]]:
+    """Rows as columns; a key some rows lack is None in them."""
+    names: dict[str, None] = {}
+    for row in rows:
+        names.update(dict.fromkeys(row))
+    return {name: [row.get(name) for row in rows] for name in names}
+
+
+@contextmanager
+def _progress(
+    progress: SweepProgress, total: int, label: str
+) -> Iterator[Callable[[dict[str, Any], int, int], None] | None]:
+    if progress is False:
+        yield None
+    elif progress is True:
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        with Progress(
+            TextColumn(label),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total} cells"),
+            TimeElapsedColumn(),
+            console=Console(stderr=True),
+            transient=True,
+        ) as bar:
+            task = bar.add_task(label, total=total)
+            yield lambda record, done, _total: bar.update(task, completed=done)
+    elif callable(progress):
+        yield progress
+    else:
+        raise TypeError(f"progress = {progress!r}: must be True, False or a callable")
