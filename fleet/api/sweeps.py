@@ -4,8 +4,8 @@ cell as one table with the cell's grid values in front."""
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Callable, Iterator
-from concurrent.futures import Executor
+from collections.abc import Callable, Iterator, Mapping
+from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,7 +13,8 @@ from typing import Any
 
 from fleet.api.runs import RunResult, open_run
 from fleet.errors import FleetError
-from fleet.study.sweep import Study, SweepResult, load_study, run_study
+from fleet.scenario import Scenario
+from fleet.study.sweep import Study, SweepResult, load_study, parse_study, run_study
 
 __all__ = ["SweepResults", "sweep"]
 
@@ -116,9 +117,13 @@ class SweepResults:
 
 
 def sweep(
-    study: Study | str | Path,
+    study: Study | Scenario | str | Path,
     out_dir: str | Path | None = None,
     *,
+    grid: Mapping[str, list[Any]] | None = None,
+    seeds: int | list[int] | None = None,
+    duration_s: float | None = None,
+    name: str | None = None,
     jobs: int | None = None,
     progress: SweepProgress = False,
     retry_failed: bool = True,
@@ -129,13 +134,21 @@ def sweep(
     Parameters
     ----------
     study:
-        A study file (see ``studies/throughput.toml``) or a `Study` from
-        `fleet.study.sweep.load_study`.
+        A study file (see ``studies/throughput.toml``), a `Study` from
+        `fleet.study.sweep.load_study`, or a `Scenario` (`load_scenario`, `change`, ...) to sweep
+        over `grid` and `seeds`.
+    grid, seeds, duration_s, name:
+        With a `Scenario`: the study file's ``[grid]`` and ``[study]`` values, checked as a
+        file's are (``grid={"robots": [2, 4], "jobs.rate_per_h": [60, 120]}``, ``seeds=3`` for
+        seeds 1 to 3). The name defaults to the scenario's.
     out_dir:
         The study directory, resumed when it holds earlier cells; None: a temporary one,
         removed when the result is no longer used.
     jobs:
-        Cells run at once, each in its own process (default: one per CPU core).
+        Cells run at once, each in its own process (default: one per CPU core); 0: one after
+        another in this process. The processes start afresh and import the main module, so a
+        script (not a notebook) that sweeps with processes keeps its code under ``if __name__
+        == "__main__":``; with 0 it need not.
     progress:
         True: a bar on stderr; a callable: ``progress(record, done, total)`` per cell.
     retry_failed:
@@ -148,12 +161,19 @@ def sweep(
     StudyError
         If the study file is wrong, naming the file, the field and the value.
     """
-    if not isinstance(study, Study):
+    if isinstance(study, Scenario):
+        study = _study_of(study, grid, seeds, duration_s, name)
+    elif grid is not None or seeds is not None or duration_s is not None or name is not None:
+        raise TypeError("grid, seeds, duration_s and name go with a Scenario, not a study")
+    elif not isinstance(study, Study):
         study = load_study(study)
     tmp = None
     if out_dir is None:
         tmp = tempfile.TemporaryDirectory(prefix=f"fleet-{study.name}-")
         out_dir = tmp.name
+    if jobs == 0 and executor is None:
+        executor = _InProcess()
+        jobs = None
     with _progress(progress, len(study.cells), study.name) as report:
         result = run_study(
             study,
@@ -164,6 +184,35 @@ def sweep(
             retry_failed=retry_failed,
         )
     return SweepResults(study, result, tmp)
+
+
+def _study_of(
+    scenario: Scenario,
+    grid: Mapping[str, list[Any]] | None,
+    seeds: int | list[int] | None,
+    duration_s: float | None,
+    name: str | None,
+) -> Study:
+    """The study of `scenario` over `grid` and `seeds`, validated as a study file's tables."""
+    name = name or scenario.name
+    table: dict[str, Any] = {"name": name, "seeds": 1 if seeds is None else seeds}
+    if duration_s is not None:
+        table["duration_s"] = duration_s
+    raw = {"study": table, "grid": dict(grid or {})}
+    # Errors name the study as "sweep(<name>)"; `map` axis values are relative to this folder.
+    return parse_study(raw, Path(f"sweep({name})"), base_scenario=scenario)
+
+
+class _InProcess(Executor):
+    """Runs each call at once, in this process (``jobs=0``)."""
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
+        future: Future = Future()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except Exception as exc:  # run_cell never raises; kept for any other callable
+            future.set_exception(exc)
+        return future
 
 
 def _columns(rows: list[dict[str, Any]]) -> dict[str, list[Any]]:
