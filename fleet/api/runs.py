@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
 import tempfile
+import weakref
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -23,13 +25,29 @@ from fleet.scenario import Scenario
 if TYPE_CHECKING:
     from fleet.engine import World
 
-__all__ = ["RunResult", "run", "open_run", "simulate", "fresh_run_dir", "run_problems"]
+__all__ = [
+    "RunResult",
+    "TemporaryFolder",
+    "run",
+    "open_run",
+    "simulate",
+    "fresh_run_dir",
+    "run_problems",
+]
 
 log = logging.getLogger("fleet.api")
 
 #: What `run` takes as `progress`: False, True (a bar on stderr) or a callable given the
 #: simulated seconds done, about 200 times over the run.
 Progress = bool | Callable[[float], None]
+
+
+class TemporaryFolder:
+    """A fresh temporary folder, removed with the last reference to this object (or at exit)."""
+
+    def __init__(self, prefix: str) -> None:
+        self.path = Path(tempfile.mkdtemp(prefix=prefix))
+        weakref.finalize(self, shutil.rmtree, str(self.path), ignore_errors=True)
 
 
 @dataclass
@@ -48,7 +66,7 @@ class RunResult:
     scenario: Scenario | None = None
     #: Every CSV table of the run directory, by name, read on first use.
     tables: Tables = field(init=False, repr=False)
-    _tmp: tempfile.TemporaryDirectory | None = field(default=None, repr=False)
+    _tmp: TemporaryFolder | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.tables = Tables(self.out_dir)
@@ -126,8 +144,8 @@ def run(
         scenario = load_scenario(scenario)
     tmp = None
     if out_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix=f"fleet-{scenario.name}-")
-        out = Path(tmp.name)
+        tmp = TemporaryFolder(f"fleet-{scenario.name}-")
+        out = tmp.path
     else:
         out = Path(out_dir)
         fresh_run_dir(out, force, source="fleet.api.run", field="out_dir")

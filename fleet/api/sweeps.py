@@ -3,7 +3,6 @@ cell as one table with the cell's grid values in front."""
 
 from __future__ import annotations
 
-import tempfile
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import Executor, Future
 from contextlib import contextmanager
@@ -11,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fleet.api.runs import RunResult, open_run
+from fleet.api.runs import RunResult, TemporaryFolder, open_run
 from fleet.errors import FleetError
 from fleet.scenario import Scenario
 from fleet.study.sweep import Study, SweepResult, load_study, parse_study, run_study
@@ -35,7 +34,7 @@ class SweepResults:
     study: Study
     #: `fleet.study.sweep.run_study`'s own account (records, counts, results.csv).
     sweep: SweepResult
-    _tmp: tempfile.TemporaryDirectory | None = field(default=None, repr=False)
+    _tmp: TemporaryFolder | None = field(default=None, repr=False)
 
     @property
     def out_dir(self) -> Path:
@@ -100,7 +99,9 @@ class SweepResults:
             if cell in (record["cell"], record["index"]):
                 if record["status"] != "ok":
                     raise FleetError(f"cell {record['cell']} failed: {record['error']}")
-                return open_run(self.out_dir / record["run_dir"])
+                cell_run = open_run(self.out_dir / record["run_dir"])
+                cell_run._tmp = self._tmp  # a temporary study folder lives as long as its runs
+                return cell_run
         raise FleetError(
             f"no cell {cell!r} in study {self.study.name!r} (ids: "
             f"{', '.join(r['cell'] for r in self.sweep.records)}; or an index from 0)"
@@ -169,8 +170,8 @@ def sweep(
         study = load_study(study)
     tmp = None
     if out_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix=f"fleet-{study.name}-")
-        out_dir = tmp.name
+        tmp = TemporaryFolder(f"fleet-{study.name}-")
+        out_dir = tmp.path
     if jobs == 0 and executor is None:
         executor = _InProcess()
         jobs = None
