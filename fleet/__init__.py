@@ -15,41 +15,26 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
-    from fleet.api import (
-        RunResult,
-        SweepResults,
-        TableNotFound,
-        change,
-        load_scenario,
-        open_run,
-        read_table,
-        run,
-        scenario_from_dict,
-        sweep,
-    )
+if TYPE_CHECKING:  # for type checkers and editors; at run time `__getattr__` imports them
+    from fleet.api import RunResult as RunResult
+    from fleet.api import SweepResults as SweepResults
+    from fleet.api import TableNotFound as TableNotFound
+    from fleet.api import change as change
+    from fleet.api import load_scenario as load_scenario
+    from fleet.api import open_run as open_run
+    from fleet.api import read_table as read_table
+    from fleet.api import run as run
+    from fleet.api import scenario_from_dict as scenario_from_dict
+    from fleet.api import sweep as sweep
 
 __version__ = "0.1.0"
 
-#: `fleet.api`'s names are offered here too (all but the version).
-__all__ = [
-    "__version__",
-    "load_scenario",
-    "scenario_from_dict",
-    "change",
-    "run",
-    "open_run",
-    "RunResult",
-    "sweep",
-    "SweepResults",
-    "read_table",
-    "TableNotFound",
-]
-
 
 def __getattr__(name: str) -> Any:
-    if name in __all__ and name != "__version__":
+    # `fleet.api`'s names (its __all__) are this package's too, imported on first use.
+    if not name.startswith("__"):
         import fleet.api
 
-        return getattr(fleet.api, name)
+        if name in fleet.api.__all__:
+            return getattr(fleet.api, name)
     raise AttributeError(f"module 'fleet' has no attribute {name!r}")

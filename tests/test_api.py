@@ -204,7 +204,7 @@ def test_the_api_prints_nothing_on_stdout(hall):
 
 def test_the_package_offers_the_api_names_on_first_use():
     assert fleet.run is fleet.api.run and fleet.SweepResults is fleet.api.SweepResults
-    assert set(fleet.__all__) == {"__version__", *fleet.api.__all__}
+    assert all(getattr(fleet, name) is getattr(fleet.api, name) for name in fleet.api.__all__)
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         fleet.nope  # noqa: B018
 
@@ -305,3 +305,21 @@ def test_docs_api_shows_the_examples_real_output(example):
             assert set(want[8:].split(", ")) <= set(got[8:].split(", ")), got
         else:
             assert want == got
+
+
+def test_progress_is_a_bar_on_stderr_or_a_callable_and_never_on_stdout(hall, capfd):
+    scenario = fleet.load_scenario(hall, {"scenario.duration_s": 20, "robots.count": 1})
+    assert fleet.run(scenario, progress=True).complete
+    cells: list[tuple[str, int, int]] = []
+    fleet.sweep(
+        scenario,
+        grid={"robots": [1]},
+        seeds=2,
+        jobs=0,
+        progress=lambda record, done, total: cells.append((record["status"], done, total)),
+    )
+    assert cells == [("ok", 1, 2), ("ok", 2, 2)]
+    fleet.sweep(scenario, grid={"robots": [1]}, jobs=0, progress=True)
+    assert capfd.readouterr().out == ""
+    with pytest.raises(TypeError, match="progress = 'yes'"):
+        fleet.run(scenario, progress="yes")

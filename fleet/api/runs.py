@@ -33,6 +33,7 @@ __all__ = [
     "simulate",
     "fresh_run_dir",
     "run_problems",
+    "progress_hook",
 ]
 
 log = logging.getLogger("fleet.api")
@@ -48,6 +49,15 @@ class TemporaryFolder:
     def __init__(self, prefix: str) -> None:
         self.path = Path(tempfile.mkdtemp(prefix=prefix))
         weakref.finalize(self, shutil.rmtree, str(self.path), ignore_errors=True)
+
+    @classmethod
+    def unless(cls, out_dir: str | Path | None, name: str) -> tuple[Path, TemporaryFolder | None]:
+        """`out_dir` if given, else a fresh temporary folder named after `name` (and the object
+        that keeps it: whoever holds it holds the folder)."""
+        if out_dir is not None:
+            return Path(out_dir), None
+        tmp = cls(f"fleet-{name}-")
+        return tmp.path, tmp
 
 
 @dataclass
@@ -127,7 +137,9 @@ def run(
         True: a progress bar on stderr; a callable: called with the simulated seconds done.
         Nothing is printed on stdout either way.
     workers:
-        Worker processes hosting the robots' agents (0: all in this process).
+        Worker processes hosting the robots' agents (0: all in this process). They start
+        afresh and import the main module: a script (not a notebook) that asks for them keeps
+        its code under ``if __name__ == "__main__":``.
 
     Raises
     ------
@@ -142,15 +154,12 @@ def run(
 
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    tmp = None
-    if out_dir is None:
-        tmp = TemporaryFolder(f"fleet-{scenario.name}-")
-        out = tmp.path
-    else:
-        out = Path(out_dir)
+    out, tmp = TemporaryFolder.unless(out_dir, scenario.name)
+    if tmp is None:
         fresh_run_dir(out, force, source="fleet.api.run", field="out_dir")
     world = World(scenario, workers=workers)
-    with _progress(progress, scenario.duration_s, scenario.name) as advance:
+    count = "{task.completed:>7,.0f} / {task.total:,.0f} s"
+    with progress_hook(progress, scenario.duration_s, scenario.name, count, float) as advance:
         summary = simulate(world, out, progress=advance, figures=figures)
     result = RunResult(out, summary, scenario, tmp)
     for problem in result.problems:
@@ -258,10 +267,16 @@ def fresh_run_dir(
 
 
 @contextmanager
-def _progress(
-    progress: Progress, total: float, label: str
-) -> Iterator[Callable[[float], None] | None]:
-    """What `World.run` gets as `progress`: nothing, the caller's callable, or a bar on stderr."""
+def progress_hook(
+    progress: bool | Callable[..., None],
+    total: float,
+    label: str,
+    count: str,
+    done: Callable[..., float],
+) -> Iterator[Callable[..., None] | None]:
+    """What a run or a sweep gets as its progress callback: nothing (`progress` False), the
+    caller's callable, or (True) one that draws a bar on stderr, labelled `label`, showing
+    `count` (a rich column format) and filled to ``done(*args)`` of `total` on each call."""
     if progress is False:
         yield None
     elif progress is True:
@@ -271,13 +286,13 @@ def _progress(
         with Progress(
             TextColumn(label),
             BarColumn(),
-            TextColumn("{task.completed:>7,.0f} / {task.total:,.0f} s"),
+            TextColumn(count),
             TimeRemainingColumn(),
             console=Console(stderr=True),
             transient=True,
         ) as bar:
             task = bar.add_task(label, total=total)
-            yield lambda now: bar.update(task, completed=now)
+            yield lambda *args: bar.update(task, completed=done(*args))
     elif callable(progress):
         yield progress
     else:

@@ -3,14 +3,13 @@ cell as one table with the cell's grid values in front."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import Executor, Future
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fleet.api.runs import RunResult, TemporaryFolder, open_run
+from fleet.api.runs import RunResult, TemporaryFolder, open_run, progress_hook
 from fleet.errors import FleetError
 from fleet.scenario import Scenario
 from fleet.study.sweep import Study, SweepResult, load_study, parse_study, run_study
@@ -168,17 +167,17 @@ def sweep(
         raise TypeError("grid, seeds, duration_s and name go with a Scenario, not a study")
     elif not isinstance(study, Study):
         study = load_study(study)
-    tmp = None
-    if out_dir is None:
-        tmp = TemporaryFolder(f"fleet-{study.name}-")
-        out_dir = tmp.path
+    out, tmp = TemporaryFolder.unless(out_dir, study.name)
     if jobs == 0 and executor is None:
         executor = _InProcess()
         jobs = None
-    with _progress(progress, len(study.cells), study.name) as report:
+    count = "{task.completed}/{task.total} cells"
+    with progress_hook(
+        progress, len(study.cells), study.name, count, lambda record, done, total: done
+    ) as report:
         result = run_study(
             study,
-            out_dir,
+            out,
             executor=executor,
             workers=jobs,
             progress=report,
@@ -222,29 +221,3 @@ def _columns(rows: list[dict[str, Any]]) -> dict[str, list[Any]]:
     for row in rows:
         names.update(dict.fromkeys(row))
     return {name: [row.get(name) for row in rows] for name in names}
-
-
-@contextmanager
-def _progress(
-    progress: SweepProgress, total: int, label: str
-) -> Iterator[Callable[[dict[str, Any], int, int], None] | None]:
-    if progress is False:
-        yield None
-    elif progress is True:
-        from rich.console import Console
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-        with Progress(
-            TextColumn(label),
-            BarColumn(),
-            TextColumn("{task.completed}/{task.total} cells"),
-            TimeElapsedColumn(),
-            console=Console(stderr=True),
-            transient=True,
-        ) as bar:
-            task = bar.add_task(label, total=total)
-            yield lambda record, done, _total: bar.update(task, completed=done)
-    elif callable(progress):
-        yield progress
-    else:
-        raise TypeError(f"progress = {progress!r}: must be True, False or a callable")
