@@ -147,6 +147,11 @@ def test_a_scenario_built_from_a_dict_is_the_file_it_would_be(hall):
     }
     built = fleet.scenario_from_dict(tables, folder=hall.parent, name="base")
     assert built == replace(fleet.load_scenario(hall), source="scenario_from_dict")
+    # Python's paths and tuples read as the file's text and lists.
+    pythonic = {**tables, "scenario": {**tables["scenario"], "map": hall.parent / "hall.toml"}}
+    pythonic["jobs"] = {**tables["jobs"], "stations": ("east", "north")}
+    assert fleet.scenario_from_dict(pythonic, name="base") == built
+    assert fleet.change(built, {"scenario.map": hall.parent / "hall.toml"}) == built
     assert tables["robots"] == {"count": 3}  # left unchanged
     assert fleet.change(built, {"robots.count": 1}).robots[0].count == 1
     with pytest.raises(ScenarioError, match=r"^scenario_from_dict: scenario.map = 'nope.toml'"):

@@ -15,7 +15,7 @@ from fleet.errors import FleetError
 from fleet.scenario import Scenario, parse_scenario, parse_with_settings
 from fleet.scenario import load_scenario as _load_scenario
 
-__all__ = ["OVERRIDES", "load_scenario", "scenario_from_dict", "change"]
+__all__ = ["OVERRIDES", "load_scenario", "scenario_from_dict", "change", "as_toml"]
 
 #: How errors name the `overrides` of these functions.
 OVERRIDES = "overrides"
@@ -40,7 +40,7 @@ def load_scenario(path: str | Path, overrides: Mapping[str, Any] | None = None) 
         Naming the file, or ``overrides`` when an override is what is wrong, with the key and
         the value.
     """
-    return _load_scenario(path, overrides, settings_source=OVERRIDES)
+    return _load_scenario(path, as_toml(overrides), settings_source=OVERRIDES)
 
 
 def scenario_from_dict(
@@ -69,7 +69,7 @@ def scenario_from_dict(
     ScenarioError
         Naming `source`, the field and the value.
     """
-    return parse_scenario(dict(tables), Path(folder) / f"{name}.toml", source=source)
+    return parse_scenario(as_toml(tables), Path(folder) / f"{name}.toml", source=source)
 
 
 def change(scenario: Scenario, overrides: Mapping[str, Any]) -> Scenario:
@@ -99,5 +99,21 @@ def change(scenario: Scenario, overrides: Mapping[str, Any]) -> Scenario:
             "undo that: make every change with change() or the overrides of load_scenario"
         )
     return parse_with_settings(
-        tables, scenario.origin, overrides, source=scenario.source, settings_source=OVERRIDES
+        tables,
+        scenario.origin,
+        as_toml(overrides),
+        source=scenario.source,
+        settings_source=OVERRIDES,
     )
+
+
+def as_toml(value: Any) -> Any:
+    """`value` as a TOML file would give it: paths as text, tuples as lists, mappings as
+    dicts (a copy; `value` is left as it is), so ``{"map": Path(...)}`` reads as the file's."""
+    if isinstance(value, Mapping):
+        return {str(k): as_toml(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [as_toml(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from fleet.api.runs import RunResult, TemporaryFolder, open_run, progress_hook
+from fleet.api.scenarios import as_toml
 from fleet.errors import FleetError
 from fleet.scenario import Scenario
 from fleet.study.sweep import Study, SweepResult, load_study, parse_study, run_study
@@ -198,7 +199,7 @@ def _study_of(
     table: dict[str, Any] = {"name": name, "seeds": 1 if seeds is None else seeds}
     if duration_s is not None:
         table["duration_s"] = duration_s
-    raw = {"study": table, "grid": dict(grid or {})}
+    raw = {"study": table, "grid": as_toml(grid or {})}
     # Errors name the study as "sweep(<name>)"; `map` axis values are relative to this folder.
     return parse_study(raw, Path(f"sweep({name})"), base_scenario=scenario)
 
