@@ -247,6 +247,8 @@ def test_a_sweep_gives_typed_rows_and_every_cells_tables(hall, tmp_path):
         assert [jobs["id"][i] for i in mine] == done.run(cell["index"]).table("jobs")["id"]
     with pytest.raises(FleetError, match="no cell 'nope'"):
         done.run("nope")
+    report = done.report(tmp_path / "report")
+    assert report.report.is_file() and "robots" in report.markdown
 
 
 def test_sweeping_a_scenario_in_code_is_sweeping_the_same_study_file(hall, tmp_path):

@@ -7,13 +7,16 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fleet.api.runs import RunResult, TemporaryFolder, open_run, progress_hook
 from fleet.api.scenarios import as_toml
 from fleet.errors import FleetError
 from fleet.scenario import Scenario
 from fleet.study.sweep import Study, SweepResult, load_study, parse_study, run_study
+
+if TYPE_CHECKING:
+    from fleet.study.report import ReportResult
 
 __all__ = ["SweepResults", "sweep"]
 
@@ -106,6 +109,13 @@ class SweepResults:
             f"no cell {cell!r} in study {self.study.name!r} (ids: "
             f"{', '.join(r['cell'] for r in self.sweep.records)}; or an index from 0)"
         )
+
+    def report(self, out_dir: str | Path | None = None) -> ReportResult:
+        """Write the study's report as ``fleet report`` does (figures and report.md, into the
+        study directory unless `out_dir`); its ``markdown`` is the report's text."""
+        from fleet.study.report import write_report
+
+        return write_report(self.out_dir, None if out_dir is None else Path(out_dir))
 
     def _grid_values(self, params: dict[str, str]) -> dict[str, Any]:
         values: dict[str, Any] = {}
