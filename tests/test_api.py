@@ -198,6 +198,10 @@ def test_the_api_prints_nothing_on_stdout(hall):
         "import fleet\n"
         f"r = fleet.run(fleet.load_scenario({str(hall)!r}, {{'scenario.duration_s': 30}}))\n"
         "assert r.table('jobs')\n"
+        # The MPC solves through pyomo and HiGHS, whose banners would go to stdout.
+        f"m = fleet.load_scenario({str(hall)!r}, {{'scenario.duration_s': 30, "
+        "'robots.count': 1, 'controller.name': 'mpc', 'jobs.rate_per_h': 3600})\n"
+        "assert fleet.run(m).summary['solver']['steps'] > 0\n"
         f"fleet.sweep(fleet.load_scenario({str(hall)!r}), grid={{'robots': [1]}}, "
         "duration_s=10, jobs=0)\n"
     )
