@@ -373,7 +373,7 @@ class World:
             cap_rows(tasks, self.scenario.print_caps),
             self.job_rows(),
             tasks,
-            attempt_rows(self.jobs, self.env.now),
+            self.attempt_rows(),
         )
 
     def task_rows(self) -> list[tuple[str, str, str, float, float, int]]:
@@ -388,6 +388,10 @@ class World:
     def job_rows(self) -> list[dict[str, Any]]:
         """One row per job for ``jobs.csv`` (see `summary.job_rows`)."""
         return job_rows(self.jobs, self.env.now)
+
+    def attempt_rows(self) -> list[dict[str, Any]]:
+        """One row per attempt at a job for ``attempts.csv`` (see `summary.attempt_rows`)."""
+        return attempt_rows(self.jobs, self.env.now)
 
     @property
     def stats(self) -> dict[str, int]:
