@@ -887,6 +887,38 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _disruption_rows(s: dict) -> list[tuple[str, str]]:
+    """The key figures of what went wrong: hand-backs (by reason) and the print time they
+    scrapped, deadlocks and faults (a summary without them, from an older run: none shown)."""
+    rows = []
+    handbacks = s.get("handbacks")
+    if isinstance(handbacks, dict):
+        rows.append(
+            (
+                "hand-backs / scrapped print",
+                f"{handbacks['count']} / {handbacks['scrapped_print_s']:.1f} s",
+            )
+        )
+        rows += [(f"  hand-backs: {why}", str(n)) for why, n in handbacks["by_reason"].items()]
+    if "deadlocks" in s:
+        rows.append(("deadlocks", str(s["deadlocks"])))
+    faults = s.get("faults")
+    if isinstance(faults, dict):
+        rows.append(
+            (
+                "faults: agents lost / left",
+                f"{faults.get('agents_lost', 0)} / {faults.get('agents_left', 0)}",
+            )
+        )
+        rows.append(
+            (
+                "faults: robots orphaned / rejoined",
+                f"{faults.get('robots_orphaned', 0)} / {faults.get('robots_rejoined', 0)}",
+            )
+        )
+    return rows
+
+
 def _kpi_table(console: Console, s: dict) -> None:
     t = Table(title="Key figures", show_header=True, header_style="bold")
     t.add_column("figure")
@@ -911,6 +943,7 @@ def _kpi_table(console: Console, s: dict) -> None:
         ("violations: print speed", str(v["print_speed"])),
         ("violations: collision", str(v["collision"])),
         ("jobs failed / in progress", f"{jobs['failed']} / {jobs['in_progress']}"),
+        *_disruption_rows(s),
         ("digest", s["digest"][:16]),
     ]
     solver = s["solver"]

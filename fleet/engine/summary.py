@@ -2,14 +2,14 @@
 
 `check_safety` judges the recorded trajectories; `summarise` turns the robots, the jobs and
 what the recorder collected into summary.json's object, with the job accounting, the quality,
-solver and latency statistics; `task_rows`, `cap_rows` and `job_rows` are the rows of
-tasks.csv, caps.csv and jobs.csv (the output contract is in `fleet.engine.recorder`).
+solver and latency statistics and the hand-backs; `task_rows`, `cap_rows`, `job_rows` and
+`attempt_rows` are the rows of tasks.csv, caps.csv, jobs.csv and attempts.csv (the output
+contract is in `fleet.engine.recorder`).
 """
 
 from __future__ import annotations
 
 import logging
-import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -31,6 +31,8 @@ __all__ = [
     "task_rows",
     "cap_rows",
     "job_rows",
+    "attempt_rows",
+    "handback_summary",
     "quality_summary",
     "solver_summary",
     "latency_summary",
@@ -127,6 +129,8 @@ def summarise(
             "in_progress": len(in_progress),
             "accounted": accounted,
             "handed_back": sum(rec.handbacks for rec in jobs),
+            # Every robot's try at a job (`attempt_rows`): delivered, handed back or under way.
+            "attempts": sum(len(rec.all_attempts()) for rec in jobs),
             "assigned_open": sum(1 for rec in jobs if rec.robot and rec.delivered_s is None),
             "unassigned": sum(1 for rec in jobs if rec.open),
             # Delivered parts that passed the quality prediction (jobs with nothing to
@@ -142,6 +146,10 @@ def summarise(
         "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
         "violations": dict(safety.counts),
         "faults": dict(recorder.faults),
+        "handbacks": handback_summary(jobs),
+        # Robots the deadlock watch found stalled (also the engine's ``deadlocks``); .get:
+        # reading the defaultdict must not add the key to the engine's counters.
+        "deadlocks": int(recorder.stats.get("deadlocks", 0)),
         "print_caps": {
             "caps": dict(sorted(scenario.print_caps.items())),
             "enforced": scenario.enforce_print_caps,
@@ -187,28 +195,60 @@ def stuck_robots(robots: Mapping[str, RobotState]) -> list[dict[str, str]]:
     ]
 
 
-def task_rows(jobs: Iterable[JobRecord]) -> list[tuple[str, str, str, float, float]]:
-    """Every print task that started: (robot, job, kind, start_s, end_s) rows on the clock,
-    cut at delivery."""
-    rows = []
-    for rec in jobs:
-        if rec.robot is None or rec.print_start_s is None:
-            continue
-        stop = math.inf if rec.delivered_s is None else rec.delivered_s
-        for task in rec.tasks:
-            start = rec.print_start_s + task.start_s
-            end = min(rec.print_start_s + task.end_s, stop)
-            if end > start:
-                rows.append((rec.robot, rec.job.id, task.kind, start, end))
-    return rows
+def task_rows(jobs: Iterable[JobRecord]) -> list[tuple[str, str, str, float, float, int]]:
+    """Every print task that started, in every attempt at a job: (robot, job, kind, start_s,
+    end_s, attempt) rows on the clock, cut where the attempt ended (delivered or handed back)."""
+    return [
+        (a.robot, a.job, kind, start, end, a.number)
+        for rec in jobs
+        for a in rec.all_attempts()
+        for kind, start, end in a.tasks
+    ]
 
 
 def cap_rows(
-    tasks: Iterable[tuple[str, str, str, float, float]], caps: Mapping[str, float]
-) -> list[tuple[str, str, str, float, float, float]]:
-    """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows, from
-    the `task_rows` of the run."""
-    return [(*row, caps[row[2]]) for row in tasks if row[2] in caps]
+    tasks: Iterable[tuple[str, str, str, float, float, int]], caps: Mapping[str, float]
+) -> list[tuple[str, str, str, float, float, float, int]]:
+    """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap, attempt) rows,
+    from the `task_rows` of the run."""
+    return [(*row[:5], caps[row[2]], row[5]) for row in tasks if row[2] in caps]
+
+
+def attempt_rows(jobs: Iterable[JobRecord], now: float) -> list[dict[str, Any]]:
+    """One row per attempt at a job for ``attempts.csv`` (None: not happened), jobs in release
+    order and each job's attempts in order; ``printed_s`` is the print time done by `now`."""
+    return [
+        {
+            "job": a.job,
+            "attempt": a.number,
+            "robot": a.robot,
+            "assigned_s": a.assigned_s,
+            "started_s": a.started_s,
+            "print_start_s": a.print_start_s,
+            "ended_s": a.ended_s,
+            "result": a.result,
+            "reason": a.reason,
+            "printed_s": a.printed_s(now),
+            "scrapped_s": a.scrapped_s,
+        }
+        for rec in jobs
+        for a in rec.all_attempts()
+    ]
+
+
+def handback_summary(jobs: Iterable[JobRecord]) -> dict[str, Any]:
+    """summary.json's ``handbacks`` object: attempts handed back, by reason, and the print time
+    and the parts they scrapped."""
+    ended = [a for rec in jobs for a in rec.attempts]
+    by_reason: dict[str, int] = defaultdict(int)
+    for a in ended:
+        by_reason[a.reason or ""] += 1
+    return {
+        "count": len(ended),
+        "by_reason": dict(sorted(by_reason.items())),
+        "scrapped_print_s": round(float(sum(a.scrapped_s for a in ended)), 6),
+        "scrapped_parts": sum(1 for a in ended if a.scrapped_s > 0),
+    }
 
 
 def job_rows(jobs: Iterable[JobRecord], now: float) -> list[dict[str, Any]]:

@@ -36,7 +36,14 @@ from fleet.engine.recorder import Recorder
 from fleet.engine.rounds import BusRounds
 from fleet.engine.safety import SafetyReport
 from fleet.engine.sensing import Sensing
-from fleet.engine.summary import cap_rows, check_safety, job_rows, summarise, task_rows
+from fleet.engine.summary import (
+    attempt_rows,
+    cap_rows,
+    check_safety,
+    job_rows,
+    summarise,
+    task_rows,
+)
 from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
@@ -366,19 +373,25 @@ class World:
             cap_rows(tasks, self.scenario.print_caps),
             self.job_rows(),
             tasks,
+            self.attempt_rows(),
         )
 
-    def task_rows(self) -> list[tuple[str, str, str, float, float]]:
-        """Every print task that started, as ``tasks.csv`` rows (see `summary.task_rows`)."""
+    def task_rows(self) -> list[tuple[str, str, str, float, float, int]]:
+        """Every print task that started, in every attempt, as ``tasks.csv`` rows (see
+        `summary.task_rows`)."""
         return task_rows(self.jobs)
 
-    def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
+    def cap_rows(self) -> list[tuple[str, str, str, float, float, float, int]]:
         """Every print cap a robot was under, as ``caps.csv`` rows (see `summary.cap_rows`)."""
         return cap_rows(self.task_rows(), self.scenario.print_caps)
 
     def job_rows(self) -> list[dict[str, Any]]:
         """One row per job for ``jobs.csv`` (see `summary.job_rows`)."""
         return job_rows(self.jobs, self.env.now)
+
+    def attempt_rows(self) -> list[dict[str, Any]]:
+        """One row per attempt at a job for ``attempts.csv`` (see `summary.attempt_rows`)."""
+        return attempt_rows(self.jobs, self.env.now)
 
     @property
     def stats(self) -> dict[str, int]:
