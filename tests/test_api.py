@@ -53,6 +53,8 @@ def test_every_csv_of_the_run_directory_is_a_table_with_typed_columns(result):
         ]
     jobs = result.table("jobs")
     assert len(jobs["id"]) == result.summary["jobs"]["released"] > 0
+    done = result.summary["jobs"]["completed"]
+    assert repr(result).startswith(f"RunResult('base': {done} of {len(jobs['id'])} jobs")
     assert all(isinstance(v, str) for v in jobs["id"])
     assert all(isinstance(v, float) for v in jobs["released_s"])
     # A job not delivered by the end has no delivery time: None, not "" or NaN.
@@ -241,6 +243,7 @@ def test_a_sweep_gives_typed_rows_and_every_cells_tables(hall, tmp_path):
         run = done.run(row["cell"])
         assert run.summary["jobs"]["released"] == row["jobs_released"]
         assert run.summary["robots"] == row["robots"]
+    assert repr(done).startswith("SweepResults('study': 4 cells, 4 ok, 0 failed")
     results = done.table()
     assert list(results) == list(rows[0]) and results["robots"] == [1, 1, 2, 2]
     jobs = done.table("jobs")

@@ -81,6 +81,15 @@ class RunResult:
     def __post_init__(self) -> None:
         self.tables = Tables(self.out_dir)
 
+    def __repr__(self) -> str:
+        # What a notebook shows for the result: a line, not the whole summary.
+        jobs = self.summary.get("jobs") or {}
+        name = self.scenario.name if self.scenario is not None else self.out_dir.name
+        return (
+            f"RunResult({name!r}: {jobs.get('completed')} of {jobs.get('released')} jobs "
+            f"completed, tables {', '.join(self.table_names)}; out_dir={str(self.out_dir)!r})"
+        )
+
     @property
     def table_names(self) -> tuple[str, ...]:
         """The tables of the run directory, e.g. ``("caps", "events", "jobs", ...)``."""

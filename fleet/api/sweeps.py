@@ -39,6 +39,12 @@ class SweepResults:
     sweep: SweepResult
     _tmp: TemporaryFolder | None = field(default=None, repr=False)
 
+    def __repr__(self) -> str:
+        return (
+            f"SweepResults({self.study.name!r}: {len(self.sweep.records)} cells, {self.ok} ok, "
+            f"{self.failed} failed; out_dir={str(self.out_dir)!r})"
+        )
+
     @property
     def out_dir(self) -> Path:
         """The study directory: results.csv, study.json and ``cells/<id>/`` per cell."""
