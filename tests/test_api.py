@@ -337,3 +337,20 @@ def test_progress_is_a_bar_on_stderr_or_a_callable_and_never_on_stdout(hall, cap
     assert capfd.readouterr().out == ""
     with pytest.raises(TypeError, match="progress = 'yes'"):
         fleet.run(scenario, progress="yes")
+
+
+def test_an_interrupted_sweep_keeps_the_cells_that_finished_and_resumes(hall, tmp_path):
+    from fleet.study.sweep import SweepInterrupted
+
+    scenario = fleet.load_scenario(hall, {"scenario.duration_s": 20})
+
+    def stop_after_one(record, done, total):
+        raise KeyboardInterrupt  # as Ctrl-C or a notebook's stop button would, mid-sweep
+
+    with pytest.raises(SweepInterrupted) as caught:
+        fleet.sweep(scenario, tmp_path, grid={"robots": [1, 2]}, jobs=0, progress=stop_after_one)
+    kept = caught.value.results
+    assert kept.ok == 1 and not kept.sweep.complete
+    assert kept.run(kept.rows[0]["cell"]).summary["robots"] == 1
+    resumed = fleet.sweep(scenario, tmp_path, grid={"robots": [1, 2]}, jobs=0)
+    assert resumed.ok == 2 and [r["skipped"] for r in resumed.sweep.records] == [True, False]

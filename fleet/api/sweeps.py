@@ -4,7 +4,7 @@ cell as one table with the cell's grid values in front."""
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from concurrent.futures import Executor, Future
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -13,7 +13,14 @@ from fleet.api.runs import RunResult, TemporaryFolder, open_run, progress_hook
 from fleet.api.scenarios import as_toml
 from fleet.errors import FleetError
 from fleet.scenario import Scenario
-from fleet.study.sweep import Study, SweepResult, load_study, parse_study, run_study
+from fleet.study.sweep import (
+    Study,
+    SweepInterrupted,
+    SweepResult,
+    load_study,
+    parse_study,
+    run_study,
+)
 
 if TYPE_CHECKING:
     from fleet.study.report import ReportResult
@@ -177,6 +184,9 @@ def sweep(
     ------
     StudyError
         If the study file is wrong, naming the file, the field and the value.
+    SweepInterrupted
+        On Ctrl-C (a notebook's stop): its ``results`` are the `SweepResults` of the cells
+        that finished; the same call into the same `out_dir` runs the rest.
     """
     if isinstance(study, Scenario):
         study = _study_of(study, grid, seeds, duration_s, name)
@@ -185,21 +195,23 @@ def sweep(
     elif not isinstance(study, Study):
         study = load_study(study)
     out, tmp = TemporaryFolder.unless(out_dir, study.name)
-    if jobs == 0 and executor is None:
-        executor = _InProcess()
-        jobs = None
     count = "{task.completed}/{task.total} cells"
     with progress_hook(
         progress, len(study.cells), study.name, count, lambda record, done, total: done
     ) as report:
-        result = run_study(
-            study,
-            out,
-            executor=executor,
-            workers=jobs,
-            progress=report,
-            retry_failed=retry_failed,
-        )
+        try:
+            result = run_study(
+                study,
+                out,
+                executor=executor,
+                workers=jobs,
+                progress=report,
+                retry_failed=retry_failed,
+            )
+        except SweepInterrupted as stopped:
+            # Interrupted (a notebook's stop button): the cells that finished stay readable.
+            stopped.results = SweepResults(study, stopped.result, tmp)  # type: ignore[attr-defined]
+            raise
     return SweepResults(study, result, tmp)
 
 
@@ -218,18 +230,6 @@ def _study_of(
     raw = {"study": table, "grid": as_toml(grid or {})}
     # Errors name the study as "sweep(<name>)"; `map` axis values are relative to this folder.
     return parse_study(raw, Path(f"sweep({name})"), base_scenario=scenario)
-
-
-class _InProcess(Executor):
-    """Runs each call at once, in this process (``jobs=0``)."""
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
-        future: Future = Future()
-        try:
-            future.set_result(fn(*args, **kwargs))
-        except Exception as exc:  # run_cell never raises; kept for any other callable
-            future.set_exception(exc)
-        return future
 
 
 def _columns(rows: list[dict[str, Any]]) -> dict[str, list[Any]]:

@@ -699,7 +699,9 @@ def run_study(
         end). A given executor (e.g. from `dask_executor`) is used as is and not shut down;
         its workers must see `out_dir` on the same path.
     workers:
-        Processes of the pool created when `executor` is None (default: the CPU count).
+        Processes of the pool created when `executor` is None (default: the CPU count); 0 runs
+        the cells one after another in this process (`fleet.api.sweep`'s ``jobs=0``: no process
+        to start, and no ``__main__`` guard needed in a script).
     progress:
         Called in this process as ``progress(record, done, total)`` per cell reused or
         finished; ``record["skipped"]`` tells which.
@@ -717,8 +719,8 @@ def run_study(
         On Ctrl-C (KeyboardInterrupt): the cells still running are stopped (the local pool's
         workers are terminated), what finished is kept, study.json says ``"complete": false``.
     """
-    if workers is not None and (not _is_int(workers) or workers < 1):
-        raise ValueError(f"workers = {workers!r}: must be a whole number >= 1 (or None)")
+    if workers is not None and (not _is_int(workers) or workers < 0):
+        raise ValueError(f"workers = {workers!r}: must be a whole number >= 0 (or None)")
     out = Path(out_dir).resolve()
     (out / "cells").mkdir(parents=True, exist_ok=True)
     # Incomplete until the last cell has its record: a sweep stopped in any way says so.
@@ -783,9 +785,12 @@ def _run_todo(
     out: Path,
     finished: Callable[[Cell, dict[str, Any]], None],
 ) -> None:
-    """Run the cells of `todo` on `executor`, or on local process pools."""
+    """Run the cells of `todo` on `executor`, on local process pools, or (`workers` 0) here."""
     if executor is not None:
         _run_cells(executor, todo, study, out, finished, own=False)
+    elif workers == 0:
+        for cell in todo:
+            finished(cell, run_cell(study.spec(cell, out)))
     elif todo:
         size = min(workers or os.cpu_count() or 1, len(todo))
         # A worker that dies (killed, out of memory) breaks the whole pool and every cell still
