@@ -53,7 +53,8 @@ from fleet.plugins import SolveReport
 
 __all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S", "PLAN_SAMPLE_S", "RUN_FILES"]
 
-#: Every file `Recorder.write` may write into a run directory (the last two only when needed).
+#: Every file a run writes into its run directory (caps.csv and violations.csv only when
+#: needed; states.csv and wip.csv come from `fleet.engine.kpis`, written by `World.write`).
 RUN_FILES = (
     "summary.json",
     "trajectories.csv",
@@ -63,6 +64,8 @@ RUN_FILES = (
     "plans.csv",
     "caps.csv",
     "violations.csv",
+    "states.csv",
+    "wip.csv",
 )
 
 #: Shortest time (s) between two planned horizons the recorder keeps for one robot.
