@@ -92,7 +92,8 @@ def job_kpis(
     """summary.json's KPIs over time: ``assign_wait_s`` (from release to first assignment),
     ``lead_time_s`` (release to delivery) spreads, the time-weighted ``queue_mean`` and
     ``wip_mean`` over ``[start, end)`` with their maxima over the run, and
-    ``suggested_warmup_s`` (MSER-5 on the WIP over the whole run, `fleet.engine.warmup`)."""
+    ``suggested_warmup_s`` (MSER-5 on the WIP over the whole run, `fleet.engine.warmup`) with
+    ``suggested_warmup_at_limit`` (it is the longest the search allows: run longer)."""
     events = list(events)
     released = {rec.job.id: rec.job.released_s for rec in jobs}
     first: dict[str, float] = {}
@@ -110,6 +111,7 @@ def job_kpis(
     queue = [r[1] for r in series]
     wip = [r[2] for r in series]
     qm, wm = time_mean(t, queue, start, end), time_mean(t, wip, start, end)
+    suggested, at_limit = suggest_warmup(t, wip, end) if end > 0 else (0.0, False)
     return {
         "assign_wait_s": spread(waits),
         "lead_time_s": spread(leads),
@@ -117,7 +119,8 @@ def job_kpis(
         "queue_max": max(queue),
         "wip_mean": None if wm is None else round(wm, 6),
         "wip_max": max(wip),
-        "suggested_warmup_s": round(suggest_warmup(t, wip, end), 6) if end > 0 else 0.0,
+        "suggested_warmup_s": round(suggested, 6),
+        "suggested_warmup_at_limit": at_limit,
     }
 
 

@@ -52,22 +52,23 @@ def mser5(series: Sequence[float], batch: int = BATCH) -> int:
     if n < 2:
         return 0
     means = y[: n * batch].reshape(n, batch).mean(axis=1)
-    best_d, best = 0, np.inf
-    for d in range(n // 2 + 1):
-        rest = means[d:]
-        stat = float(np.sum((rest - rest.mean()) ** 2)) / rest.size**2
-        if stat < best - 1e-15 * max(abs(best), 1.0):  # ties keep the shorter warm-up
-            best_d, best = d, stat
-    return best_d * batch
+    stats = [
+        float(np.sum((means[d:] - means[d:].mean()) ** 2)) / (n - d) ** 2 for d in range(n // 2 + 1)
+    ]
+    return int(np.argmin(stats)) * batch  # ties keep the shorter warm-up (the first minimum)
 
 
 def suggest_warmup(
     t: Sequence[float], v: Sequence[float], end: float, cells: int = GRID_CELLS
-) -> float:
+) -> tuple[float, bool]:
     """The warm-up (s) MSER-5 suggests for the step signal `v` at change times `t` (starting at
-    ``t[0]``) over a run ending at `end`: the truncation in grid cells times the cell width."""
+    ``t[0]``) over a run ending at `end` (the truncation in grid cells times the cell width),
+    and whether it is the longest the search allows (about half the run: the series has not
+    settled, or trends all along, and a longer run is needed to judge)."""
     means = grid_means(t, v, end, cells)
-    if means.size == 0:
-        return 0.0
+    n = means.size // BATCH
+    if n < 2:
+        return 0.0, False
     width = (end - float(t[0])) / means.size
-    return float(t[0]) + mser5(means) * width
+    cut = mser5(means)
+    return float(t[0]) + cut * width, cut == (n // 2) * BATCH
