@@ -22,6 +22,7 @@ from fleet.engine.warmup import grid_means, mser5, suggest_warmup
 from fleet.errors import ScenarioError
 from fleet.printing import PrintTask
 from fleet.scenario import REPO_ROOT, JobsConfig, ScriptedJob, check_warmup, load_scenario
+from fleet.study.warmup import warmup_lines
 from fleet.view.kpi_figures import STATES_PNG, WIP_PNG, save_kpi_figures
 
 FLEET = REPO_ROOT / "scenarios" / "fleet.toml"
@@ -286,3 +287,18 @@ def test_fleet_run_shows_the_kpis_over_time(tmp_path, capsys):
     assert (out / STATES_PNG).is_file() and (out / WIP_PNG).is_file()
     # --force clears the new files as the run's own.
     assert main(["run", str(FLEET), "--duration", "60", "--out", str(out), "--force"]) == 0
+
+
+def test_the_study_report_gathers_the_runs_warm_up_suggestions(printed, tmp_path):
+    _, s0, out0 = printed
+    world = World(load_scenario(FLEET).override(robots=4, duration=600.0))
+    s1 = world.run().summary
+    world.write(tmp_path / "fleet")
+    lines = warmup_lines([out0, tmp_path / "fleet", None, tmp_path / "absent"])
+    text = "\n".join(lines)
+    assert lines[1] == "## Warm-up"
+    got = [s0["suggested_warmup_s"], s1["suggested_warmup_s"]]
+    assert f"{np.median(got):.0f} s (median) to {max(got):.0f} s (largest) over 2 runs" in text
+    limited = s0["suggested_warmup_at_limit"] + s1["suggested_warmup_at_limit"]
+    assert ("run longer" in text) is (limited > 0)
+    assert warmup_lines([tmp_path / "absent"]) == []
