@@ -219,14 +219,24 @@ def test_grid_means_are_time_weighted():
     assert time_mean([0.0, 1.0], [1.0, 3.0], 2.0, 4.0) == 3.0
 
 
-def test_a_real_run_gets_a_warm_up_suggestion_within_its_first_half():
-    # The auction fleet starts empty; MSER-5 cuts at most half the run and says whether it
-    # stopped at that limit.
-    s = World(load_scenario(FLEET).override(robots=6, duration=1200.0)).run().summary
-    assert 0.0 <= s["suggested_warmup_s"] <= 600.0
-    assert s["suggested_warmup_at_limit"] is (s["suggested_warmup_s"] == 600.0)
-    # A whole number of batches of 5 grid cells of 1.2 s.
-    batches = s["suggested_warmup_s"] / (5 * 1200.0 / 1000)
+def test_on_a_real_run_mser5_cuts_where_a_backlog_has_cleared():
+    # Six robots start with 30 jobs waiting, then get one every 30 s (less than they can do):
+    # the WIP falls from 30 to a few jobs, then stays there. MSER-5 cuts once the backlog has
+    # cleared, not long after the WIP settled, in a whole number of batches of 5 cells of 1.5 s.
+    backlog = tuple(ScriptedJob(0.0, STATIONS[(i + 1) % 4]) for i in range(30))
+    steady = tuple(ScriptedJob(30.0 * k, STATIONS[(3 * k + 1) % 4]) for k in range(1, 50))
+    sc = replace(
+        load_scenario(FLEET).override(robots=6, duration=1500.0),
+        jobs=JobsConfig(mode="scripted", scripted=backlog + steady),
+    )
+    world = World(sc)
+    s = world.run().summary
+    series = queue_wip(world.recorder.events)
+    cleared = next(t for t, queue, _ in series if t > 0 and queue == 0)
+    settled = next(t for t, _, wip in series if t > 0 and wip <= 3)
+    assert cleared <= s["suggested_warmup_s"] <= settled + 200.0
+    assert s["suggested_warmup_at_limit"] is False
+    batches = s["suggested_warmup_s"] / (5 * 1500.0 / 1000)
     assert math.isclose(batches, round(batches), abs_tol=1e-6)
 
 
