@@ -387,8 +387,8 @@ def _output_arguments(p: argparse.ArgumentParser) -> None:
         "--no-figures",
         dest="figures",
         action="store_false",
-        help="skip trajectory.png, speed.png and gantt.png (they take about two seconds for an "
-        "hour of a few robots; `fleet plot RUN_DIR` draws them later)",
+        help="skip trajectory.png, speed.png, gantt.png, states.png and wip.png (they take about "
+        "two seconds for an hour of a few robots; `fleet plot RUN_DIR` draws them later)",
     )
 
 
@@ -967,9 +967,52 @@ def _kpi_table(console: Console, s: dict) -> None:
         ]
     for robot, at in (s.get("arrivals") or {}).items():
         rows.insert(-1, (f"arrival {robot}", "-" if at is None else f"{at:.1f} s"))
+    rows[-1:-1] = _time_rows(s)
     for name, value in rows:
         t.add_row(name, value)
     console.print(t)
+
+
+def _time_rows(s: dict) -> list[tuple[str, str]]:
+    """The KPI table's rows of KPIs over time: waits, lead times, queue and WIP, the fleet's
+    share of time in each state, the warm-up left out and the one MSER-5 suggests."""
+    rows = []
+
+    for key, what, stats in (
+        ("assign_wait_s", "wait for assignment", ("mean", "p50", "p95")),
+        ("lead_time_s", "lead time", ("p50", "p95")),
+    ):
+        d = s.get(key) or {}
+        if d.get("n"):
+            values = " / ".join(f"{d[k]:.1f}" for k in stats)
+            rows.append((f"{what} {' / '.join(stats)}", f"{values} s"))
+    if s.get("wip_mean") is not None:
+        rows.append(("queue / WIP mean", f"{s['queue_mean']:.2f} / {s['wip_mean']:.2f} jobs"))
+    shares = (s.get("states") or {}).get("shares")
+    if shares:
+        pct = {k: f"{100 * v:.0f}" for k, v in shares.items()}
+        rows.append(
+            (
+                "robots' time idle / driving empty / blocked",
+                f"{pct['idle']} / {pct['driving_empty']} / {pct['blocked']} %",
+            )
+        )
+        rows.append(
+            (
+                "robots' time printing driving / at rest",
+                f"{pct['printing_driving']} / {pct['printing_at_rest']} %",
+            )
+        )
+        if shares["faulted"] or shares["charging"]:
+            rows.append(
+                ("robots' time faulted / charging", f"{pct['faulted']} / {pct['charging']} %")
+            )
+    if s.get("warmup_s"):
+        rows.append(("warm-up left out of the KPIs", f"{s['warmup_s']:g} s"))
+    if s.get("suggested_warmup_s") is not None:
+        limit = " (limit: run longer)" if s.get("suggested_warmup_at_limit") else ""
+        rows.append(("warm-up suggested (MSER-5, WIP)", f"{s['suggested_warmup_s']:.0f} s{limit}"))
+    return rows
 
 
 def _cmd_plugins(args: argparse.Namespace, console: Console, errors: Console) -> int:

@@ -239,6 +239,7 @@ def fresh_run_dir(
     name `source` and `field` (the option or argument that gave `out`)."""
     from fleet.engine.recorder import RUN_FILES
     from fleet.view.figures import GANTT_PNG, SPEED_PNG, TRAJECTORY_PNG
+    from fleet.view.kpi_figures import STATES_PNG, WIP_PNG
     from fleet.view.replay import REPLAY_HTML
 
     if not out.exists():
@@ -261,7 +262,7 @@ def fresh_run_dir(
             f"no figure or table of an earlier run survives: give another {field}, or {clear} "
             "to clear the earlier run's files first",
         )
-    ours = {*RUN_FILES, TRAJECTORY_PNG, SPEED_PNG, GANTT_PNG, REPLAY_HTML}
+    ours = {*RUN_FILES, TRAJECTORY_PNG, SPEED_PNG, GANTT_PNG, STATES_PNG, WIP_PNG, REPLAY_HTML}
     foreign = [p.name for p in found if p.name not in ours or not p.is_file()]
     if foreign:
         raise InputError(

@@ -21,6 +21,17 @@ Output contract (extend it, never break it):
   attempts.csv), deadlocks (robots the deadlock watch found stalled), faults {agents_lost,
   agents_left, robots_orphaned, robots_rejoined}, jobs.attempts; for scripted (point-to-point)
   runs also arrivals {robot: when it reached the destination of its last trip, s, or null}.
+  KPIs over time (`fleet.engine.kpis`, `fleet.engine.activity`): warmup_s (the scenario's;
+  throughput_per_h, throughput_good_per_h, mean_lead_time_s and everything below leave out
+  [0, warmup_s); the jobs counts cover the whole run), assign_wait_s and lead_time_s {n, mean,
+  p50, p95, max} (release to first assignment, counted when the assignment is at or after
+  warmup_s; release to delivery, counted when the delivery is), queue_mean, wip_mean
+  (time-weighted over [warmup_s, end)), queue_max, wip_max (over the run),
+  suggested_warmup_s and suggested_warmup_at_limit (MSER-5 on the WIP, `fleet.engine.warmup`),
+  states {from_s, to_s, shares {state: fleet-wide share}, robots {id: {state: {seconds,
+  share}}}} with the states idle, driving_empty, printing_driving, printing_at_rest, blocked,
+  faulted, charging: each robot's seconds sum to to_s - from_s (the run's length less the
+  warm-up).
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
   arrived, delivered, and deadlock, make_way, handed_back, failed, fault, rejoined).
@@ -45,6 +56,10 @@ Output contract (extend it, never break it):
   the plan sent at t_sent; a plan holds until the robot's next), at most one per robot per
   second, samples at least half a second apart.
 - ``violations.csv``: the first violations in full, when there are any.
+- ``states.csv``: robot, state, seconds, share: each robot's time in each state over
+  [warmup_s, end) (summary.json ``states``; defined in `fleet.engine.activity`).
+- ``wip.csv``: t, queue, wip: jobs released and not assigned, and released and neither
+  delivered nor failed, from t = 0 and at every time either changes (`fleet.engine.kpis`).
 """
 
 from __future__ import annotations
@@ -75,8 +90,8 @@ __all__ = [
     "JOB_COLUMNS",
 ]
 
-#: Every file `Recorder.write` may write into a run directory (caps.csv and violations.csv only
-#: when needed).
+#: Every file a run writes into its run directory (caps.csv and violations.csv only when
+#: needed; states.csv and wip.csv come from `fleet.engine.kpis`, written by `World.write`).
 RUN_FILES = (
     "summary.json",
     "trajectories.csv",
@@ -87,6 +102,8 @@ RUN_FILES = (
     "caps.csv",
     "attempts.csv",
     "violations.csv",
+    "states.csv",
+    "wip.csv",
 )
 
 #: Shortest time (s) between two planned horizons the recorder keeps for one robot.

@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from fleet.engine.activity import Activity
 from fleet.engine.jobs import JobRecord
+from fleet.engine.kpis import job_kpis
 from fleet.engine.motion import EFFECT_EPS_S, RobotState
 from fleet.engine.recorder import Recorder
 from fleet.engine.safety import SafetyChecker, SafetyReport
@@ -65,9 +67,10 @@ def summarise(
     wall_time_s: float,
     bus_rounds: int,
     bus_stats: Mapping[str, int],
+    activity: Activity | None = None,
 ) -> dict[str, Any]:
     """summary.json's object for a run that ended at `now` after `wall_time_s` seconds of
-    wall time (see `fleet.engine.recorder` for its keys)."""
+    wall time (see `fleet.engine.recorder` for its keys); `activity` adds the robots' states."""
     completed = [rec for rec in jobs if rec.delivered_s is not None]
     failed = [rec for rec in jobs if rec.failed_s is not None]
     # No job may be lost: every released job is delivered, given up, held by a robot
@@ -87,13 +90,17 @@ def summarise(
             len(in_progress),
         )
     good = [rec for rec in completed if rec.quality is None or rec.quality.passed]
+    # The KPIs leave out the warm-up: deliveries from `warmup_s` on, over the time since.
+    start, end = scenario.warmup_s, min(now, scenario.duration_s)
+    measured = [rec for rec in completed if rec.delivered_s >= start]
+    measured_good = [rec for rec in measured if rec.quality is None or rec.quality.passed]
     late = sum(
         1
         for rec in jobs
         if rec.late
         or (rec.delivered_s is None and rec.job.due_s is not None and now > rec.job.due_s)
     )
-    lead = [rec.lead_time_s for rec in completed]
+    lead = [rec.lead_time_s for rec in measured]
     per_robot = [
         {
             "id": rid,
@@ -107,7 +114,7 @@ def summarise(
         for rid, r in robots.items()
     ]
     # A run stopped early (Ctrl-C) is judged over the time it ran.
-    hours = min(now, scenario.duration_s) / 3600.0
+    hours = max(end - start, 0.0) / 3600.0
     summary = {
         "scenario": scenario.name,
         "scenario_file": scenario.source,
@@ -140,8 +147,8 @@ def summarise(
             "defective": len(completed) - len(good),
             "late": late,
         },
-        "throughput_per_h": round(len(completed) / hours, 6) if hours > 0 else 0.0,
-        "throughput_good_per_h": round(len(good) / hours, 6) if hours > 0 else 0.0,
+        "throughput_per_h": round(len(measured) / hours, 6) if hours > 0 else 0.0,
+        "throughput_good_per_h": round(len(measured_good) / hours, 6) if hours > 0 else 0.0,
         "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
         "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
         "violations": dict(safety.counts),
@@ -167,6 +174,10 @@ def summarise(
         },
         "digest": recorder.digest(),
     }
+    summary["warmup_s"] = start
+    summary.update(job_kpis(jobs, recorder.events, start, end))
+    if activity is not None:
+        summary["states"] = activity.summary(end)
     if scenario.jobs.mode == "scripted":
         # Point-to-point runs: when each robot reached the destination of its last trip
         # (a print may keep it there longer); None while a trip it was given is still open.

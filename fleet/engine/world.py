@@ -25,9 +25,11 @@ import numpy as np
 import simpy
 
 from fleet.bus import AgentHost, Exchange
+from fleet.engine.activity import Activity
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.kpis import STATES_CSV, WIP_CSV, wip_rows, write_rows
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
@@ -48,7 +50,7 @@ from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec, SolveReport, load_dispatcher
-from fleet.scenario import Scenario, check_fleet, parse_latency
+from fleet.scenario import Scenario, check_fleet, check_warmup, parse_latency
 
 __all__ = ["World", "RunResult"]
 
@@ -93,6 +95,7 @@ class World:
         self.scenario = scenario
         self.floor = load_run_floor(scenario, floor)
         check_fleet(scenario, self.floor.spec.clearance)
+        check_warmup(scenario)  # --duration or code may have made the run shorter than it
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
@@ -103,6 +106,8 @@ class World:
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
         self.recorder = Recorder(list(self.robots))
+        #: Time per robot per state (`fleet.engine.activity`), counted step by step.
+        self.activity = Activity(self.robots, scenario.arrival_tolerance_m, scenario.warmup_s)
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
         placement.check_reachable(homes, self.job_source.stations)
@@ -271,6 +276,7 @@ class World:
             else:
                 # The bus round queued the command with its latency: blend what is in force.
                 robot.ax, robot.ay = robot.step_input(env.now, period)
+            self.activity.step(robot, env.now)
             robot.tick += 1
             yield env.timeout(period)
 
@@ -357,6 +363,7 @@ class World:
             wall_time_s=wall_time,
             bus_rounds=self.rounds.count,
             bus_stats=self.exchange.stats,
+            activity=self.activity,
         )
         return RunResult(summary, safety, list(self.jobs))
 
@@ -375,6 +382,10 @@ class World:
             tasks,
             self.attempt_rows(),
         )
+        end = min(float(self.env.now), self.scenario.duration_s)
+        states = self.activity.rows(end)
+        write_rows(out / STATES_CSV, ("robot", "state", "seconds", "share"), states)
+        write_rows(out / WIP_CSV, ("t", "queue", "wip"), wip_rows(self.recorder.events))
 
     def task_rows(self) -> list[tuple[str, str, str, float, float, int]]:
         """Every print task that started, in every attempt, as ``tasks.csv`` rows (see

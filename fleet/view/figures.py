@@ -47,6 +47,7 @@ from shapely.geometry.base import BaseGeometry
 
 from fleet.errors import InputError
 from fleet.floor import Floor, load_floor
+from fleet.view.kpi_figures import save_kpi_figures
 
 __all__ = [
     "Track",
@@ -1178,7 +1179,8 @@ def gantt_figure(
 
 
 def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int = 6) -> list[Path]:
-    """Write ``trajectory.png``, ``speed.png`` and ``gantt.png`` into `run_dir`.
+    """Write ``trajectory.png``, ``speed.png``, ``gantt.png`` (and ``states.png``, ``wip.png``)
+    into `run_dir`.
 
     Everything is read from the files there; nothing is re-run.
 
@@ -1197,7 +1199,8 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
     Returns
     -------
     list of Path
-        The three PNG files: trajectory, speed, Gantt.
+        The PNG files: trajectory, speed, Gantt, then ``states.png`` and ``wip.png`` when the
+        run directory has ``states.csv`` and ``wip.csv`` (`fleet.view.kpi_figures`).
 
     Raises
     ------
@@ -1228,7 +1231,8 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
     ]
     for fig, path in zip(figures, out, strict=True):
         fig.savefig(path, dpi=_DPI)
-    return out
+    # states.png and wip.png, when the run directory has their CSVs.
+    return out + save_kpi_figures(run.run_dir, title=run.title, t_end=run.t_end)
 
 
 # -- helpers ----------------------------------------------------------------------------------
