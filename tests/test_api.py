@@ -70,10 +70,10 @@ def test_every_csv_of_the_run_directory_is_a_table_with_typed_columns(result):
 def test_a_table_is_a_fresh_copy_and_an_unknown_one_names_the_tables_there_are(result):
     result.table("jobs")["id"].clear()
     assert result.table("jobs")["id"]
-    with pytest.raises(fleet.TableNotFound, match=r"no table 'wip'.*events, jobs") as caught:
-        result.table("wip")
+    with pytest.raises(fleet.TableNotFound, match=r"no table 'nope'.*events, jobs") as caught:
+        result.table("nope")
     assert isinstance(caught.value, KeyError) and isinstance(caught.value, FleetError)
-    assert "wip" not in result.tables and "jobs" in result.tables and "jobs.csv" in result.tables
+    assert "nope" not in result.tables and "jobs" in result.tables and "jobs.csv" in result.tables
     assert result.path("jobs.csv") == result.out_dir / "jobs.csv"
 
 
@@ -82,12 +82,12 @@ def test_a_table_the_recorder_learns_to_write_is_read_without_a_list(result, tmp
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     (run_dir / "summary.json").write_text((result.out_dir / "summary.json").read_text())
-    (run_dir / "wip.csv").write_text(
+    (run_dir / "future.csv").write_text(
         "t,wip,share,busy,robot,note\n0,1,0.5,true,r01,\n1.5,2,1,false,,x\n3,10,1e-3,TRUE,r02,7\n"
     )
     opened = fleet.open_run(run_dir)
-    assert opened.table_names == ("wip",)
-    assert opened.table("wip") == {
+    assert opened.table_names == ("future",)
+    assert opened.table("future") == {
         "t": [0.0, 1.5, 3.0],  # a column with one fraction is all floats
         "wip": [1, 2, 10],
         "share": [0.5, 1.0, 0.001],
