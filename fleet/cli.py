@@ -885,8 +885,10 @@ def _cmd_report(args: argparse.Namespace, console: Console, errors: Console) -> 
     return EXIT_OK
 
 
-def _print_comparisons(console: Console, summary: Any) -> None:
-    """The leader of each setting against the runner-up, the method, and the seeds needed."""
+def _print_comparisons(console: Console, summary: Any, most: int = 12) -> None:
+    """The leader's difference to each other series per setting, with the method named, and
+    whether the intervals meet the target half-width."""
+    lines = []
     for r in summary.rankings:
         where = ", ".join(
             f"{axis}={label}"
@@ -894,15 +896,15 @@ def _print_comparisons(console: Console, summary: Any) -> None:
             if label is not None
         )
         prefix = f"{where}: " if where else ""
-        d = r.differences.get(r.runner_up) if r.runner_up else None
-        if d is None:
-            console.print(f"{escape(prefix)}{escape(r.leader)} alone", soft_wrap=True)
-            continue
-        console.print(
-            f"{escape(prefix)}{escape(r.leader)} − {escape(r.runner_up)} = {d.text()} good "
-            f"parts/h ({escape(d.method_text())}): {r.verdict.value}",
-            soft_wrap=True,
-        )
+        for series, d in r.differences.items():
+            sep = "" if d.half_width is None else ", separated" if d.low > 0 else ", not separated"
+            lines.append(
+                f"{prefix}{r.leader} − {series} = {d.text()} good parts/h ({d.method_text()}){sep}"
+            )
+    for line in lines[:most]:
+        console.print(escape(line), soft_wrap=True, highlight=False)
+    if len(lines) > most:
+        console.print(f"… {len(lines) - most} more differences in report.md (Comparisons)")
     short = [a for a in summary.advice if not a.enough]
     known = [a.needed for a in short if a.needed is not None]
     if short:
@@ -911,6 +913,7 @@ def _print_comparisons(console: Console, summary: Any) -> None:
             f"{len(short)} of {len(summary.advice)} intervals are wider than "
             f"{escape(summary.target.text())}{more} (report.md, Replications)",
             soft_wrap=True,
+            highlight=False,
         )
 
 

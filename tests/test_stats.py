@@ -42,6 +42,13 @@ def test_t_quantiles_are_the_printed_table_and_take_fractional_df():
         t_quantile(3, 1.0)
 
 
+def test_t_quantiles_are_scipy_stats_t_ppf():
+    for df in (1, 2, 3.5, 4, 9, 17.25, 30, 31, 120, 1e5):
+        for confidence in (0.8, 0.9, 0.95, 0.99):
+            expected = sps.t.ppf(0.5 + confidence / 2, df)
+            assert t_quantile(df, confidence) == pytest.approx(expected, rel=1e-12)
+
+
 def student_t_cdf(x: float, df: int) -> float:
     """P(T <= x) for x >= 0 by Simpson integration of the density (independent of scipy)."""
     grid = np.linspace(0.0, x, 20001)

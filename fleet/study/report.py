@@ -26,7 +26,7 @@ only listed. Without a rate axis, throughput and defects are grouped bars (one g
 robots axis there is one panel.
 
 Statistics use the runs whose status is ``"ok"``; failed runs are listed and left out; the
-computations are `fleet.study.stats`' (quantiles from `scipy.stats.t`). A series' mean across
+computations are `fleet.study.stats`' (quantiles from scipy's t distribution). A series' mean across
 seeds has a two-sided 95 % Student t interval with n-1 degrees of freedom, cut at zero (good
 parts per hour cannot be negative); a single seed has none. In each setting the series with the
 highest mean, the leader, is compared with every other series by their difference: a sweep runs
@@ -835,7 +835,7 @@ def report_markdown(summary: Summary) -> str:
         f"{', '.join(map(str, st.seeds))}; {len(ok)} ok, {len(failed)} failed.",
         f"Axes: {axes}.",
         "Statistics use the ok runs only. Good parts per hour: the mean across seeds with its "
-        "two-sided 95 % Student t interval (`scipy.stats.t`, n-1 degrees of freedom), shown as "
+        "two-sided 95 % Student t interval (scipy's t quantiles, n-1 degrees of freedom), shown as "
         "± half-width, or as [low, high] where it is cut at 0 (no negative throughput); none "
         "for a single seed. Series are compared by the leader's difference to each other "
         "series, paired seed by seed where both ran the same seeds (see Comparisons).",
