@@ -324,6 +324,8 @@ def test_report_of_a_two_arm_five_seed_study_prints_paired_intervals(paired, cap
     assert "wider than 5 % of the mean" in text
     report = (paired / "report.md").read_text()
     assert f"| 60 | {lead} − {other} | {interval} |" in report and method in report
+    # The engine gives common random numbers: each seed releases the same jobs in both arms.
+    assert "the released jobs (id, part, release time) are the same in all 5 pairs" in report
 
     assert main(["report", str(paired), "--json", "--half-width", "100%"]) == 0
     data = json.loads(capsys.readouterr().out)

@@ -606,3 +606,23 @@ def test_the_throughput_figure_cuts_error_bars_at_zero(tmp_path):
         seg[0][1] for line in ax.collections for seg in line.get_segments()
     ]  # error-bar segments: (x, low) to (x, high)
     assert min(lows) == 0.0  # the t interval would reach below zero
+
+
+def test_released_jobs_are_compared_seed_by_seed_for_common_random_numbers(tmp_path):
+    a, b = {1: 4.0, 2: 6.0}, {1: 3.0, 2: 5.5}
+    path = pair_study(tmp_path / "s", a, b)
+    with open(path / "results.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    header = "id,part,released_s,delivered_s,outcome\n"
+    for r in rows:
+        # Seed 2 of B released its second job later than seed 2 of A: not the same arrivals.
+        late = r["controller"] == "B" and r["seed"] == "2"
+        jobs = f"j1,prism,10.0,900.0,good\nj2,prism,{'75.5' if late else '70.0'},,\n"
+        (path / "cells" / r["cell"]).mkdir(parents=True)
+        (path / "cells" / r["cell"] / "jobs.csv").write_text(header + jobs)
+    summary = write_report(path).summary
+    assert summary.arrivals_checked == 2
+    assert summary.arrivals_differ == ("all runs: A and B, seed 2",)
+    assert "the released jobs differ in 1 of 2 pairs of runs (all runs: A and B, seed 2)" in (
+        (path / "report.md").read_text()
+    )

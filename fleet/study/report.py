@@ -45,6 +45,7 @@ Figures are drawn on `matplotlib.figure.Figure` with an Agg canvas, never pyplot
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -267,11 +268,14 @@ class Run:
 
 @dataclass(frozen=True)
 class JobStats:
-    """What one run's ``jobs.csv`` says: lead times of delivered jobs and judged prints."""
+    """What one run's ``jobs.csv`` says: lead times of delivered jobs and judged prints, and a
+    digest of the jobs released (``arrivals``: id, part and release time of each job, each once;
+    two runs of one seed with common random numbers have the same)."""
 
     lead_times_s: tuple[float, ...]
     judged: int
     defective: int  # defective + failed outcomes
+    arrivals: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -477,7 +481,10 @@ def load_jobs(path: Path) -> JobStats:
         )
     leads: list[float] = []
     judged = defective = 0
+    jobs_released = set()
     for line, row in rows:
+        when = (row["released_s"] or "").strip()
+        jobs_released.add((row.get("id") or "", row.get("part") or "", when))
         if (row["delivered_s"] or "").strip():
             delivered = _number(path, line, "delivered_s", row["delivered_s"])
             released = _number(path, line, "released_s", row["released_s"])
@@ -493,7 +500,8 @@ def load_jobs(path: Path) -> JobStats:
                 )
             judged += 1
             defective += outcome != "good"
-    return JobStats(tuple(leads), judged, defective)
+    arrivals = hashlib.sha256(repr(sorted(jobs_released)).encode()).hexdigest()[:16]
+    return JobStats(tuple(leads), judged, defective, arrivals)
 
 
 # -- the numbers the report shows -------------------------------------------------------------
@@ -526,6 +534,9 @@ class Summary:
         Ok cells whose run directory has no ``jobs.csv`` (left out of lead times and defects).
     samples:
         (panel, series, x) -> (seed, good parts per hour) of the ok runs, in file order.
+    arrivals_checked, arrivals_differ:
+        Pairs of runs of a paired difference (one seed, leader and series) whose ``jobs.csv``
+        were compared for common random numbers, and those whose released jobs differ.
     target:
         The half-width asked of the intervals (`HalfWidth`).
     advice:
@@ -546,6 +557,8 @@ class Summary:
     samples: dict[Key, tuple[tuple[int, float], ...]] = field(default_factory=dict)
     target: HalfWidth = DEFAULT_HALF_WIDTH
     advice: tuple[Advice, ...] = ()
+    arrivals_checked: int = 0
+    arrivals_differ: tuple[str, ...] = ()
 
     @property
     def differences(self) -> tuple[Difference, ...]:
@@ -602,8 +615,10 @@ def summarise(
     defects: dict[Key, list[int]] = {}
     violations = {s: dict.fromkeys(VIOLATION_KINDS, 0) for s in series}
     no_jobs = []
+    cell_of: dict[tuple[Key, int], str] = {}
     for r in ok:
         key = (study.panel_of(r), study.series_of(r), study.x_of(r))
+        cell_of[(key, r.seed)] = r.cell
         good.setdefault(key, []).append((r.seed, float(r.good_per_h)))  # type: ignore[arg-type]
         for kind, count in r.violations.items():
             violations[key[1]][kind] += count
@@ -622,6 +637,7 @@ def summarise(
     }
     rankings = []
     advice = []
+    checked, differ = 0, []
     for p in panels:
         for x in xs:
             here = {s: good[(p, s, x)] for s in series if (p, s, x) in good}
@@ -634,6 +650,15 @@ def summarise(
                 advice.append(_advice(p, x, s, iv.n, iv.half_width, iv.sd, half_width.of(iv.mean)))
             target = half_width.of(throughput[(p, c.leader, x)].mean)
             for s, d in c.differences.items():
+                if d.method is Method.PAIRED:
+                    for seed in d.seeds:
+                        pair = [jobs.get(cell_of[((p, name, x), seed)]) for name in (c.leader, s)]
+                        if pair[0] is None or pair[1] is None:
+                            continue
+                        checked += 1
+                        if pair[0].arrivals != pair[1].arrivals:
+                            where = _setting(study, p, x)
+                            differ.append(f"{where}: {c.leader} and {s}, seed {seed}")
                 n = len(d.seeds) if d.method is Method.PAIRED else min(d.n_a, d.n_b)
                 advice.append(_advice(p, x, f"{c.leader} − {s}", n, d.half_width, d.sd, target))
     return Summary(
@@ -650,6 +675,8 @@ def summarise(
         samples={k: tuple(v) for k, v in good.items()},
         target=half_width,
         advice=tuple(advice),
+        arrivals_checked=checked,
+        arrivals_differ=tuple(differ),
     )
 
 
@@ -1306,6 +1333,19 @@ def _comparisons(summary: Summary) -> list[str]:
         out.append(
             f"{len(summary.differences) - len(paired)} of {len(summary.differences)} "
             "comparisons are not paired: their series' ok seeds differ."
+        )
+    if summary.arrivals_differ:
+        shown = "; ".join(summary.arrivals_differ[:5])
+        more = ", …" if len(summary.arrivals_differ) > 5 else ""
+        out.append(
+            f"Common random numbers checked in the runs' `jobs.csv`: the released jobs differ "
+            f"in {len(summary.arrivals_differ)} of {summary.arrivals_checked} pairs of runs "
+            f"({shown}{more}): an axis that changes the arrivals; pairing holds but cancels less."
+        )
+    elif summary.arrivals_checked:
+        out.append(
+            "Common random numbers checked in the runs' `jobs.csv`: the released jobs (id, part, "
+            f"release time) are the same in all {summary.arrivals_checked} pairs of runs."
         )
     first = st.x_axis or "setting"
     for p in summary.panels:
