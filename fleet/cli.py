@@ -274,7 +274,17 @@ def _parser() -> argparse.ArgumentParser:
     )
     report.add_argument("study_dir", type=Path, help="a directory written by `fleet sweep`")
     report.add_argument("--out", type=Path, help="where to write (default: the study directory)")
-    _json_argument(report, "the files written and the table of good parts per hour")
+    report.add_argument(
+        "--half-width",
+        default="5%",
+        metavar="H",
+        help="the 95 %% interval half-width to aim for: a share of the mean (5%%, the default) "
+        "or good parts/h (0.5); the report says which intervals are wider and how many seeds "
+        "they need",
+    )
+    _json_argument(
+        report, "the files written, good parts per hour, the differences and the seeds needed"
+    )
 
     plot = command(
         "plot",
@@ -742,15 +752,19 @@ def _cmd_sweep(args: argparse.Namespace, console: Console, errors: Console) -> i
 
 
 def _cmd_report(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from fleet.study.report import write_report
+    from fleet.study.report import HalfWidth, method_summary, write_report
 
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise InputError(
             "command line", "--out", str(args.out), "is a file; the report needs a directory"
         )
-    result = write_report(args.study_dir, args.out)
+    try:
+        target = HalfWidth.parse(args.half_width)
+    except ValueError as exc:
+        raise InputError("command line", "--half-width", args.half_width, str(exc)) from None
+    result = write_report(args.study_dir, args.out, half_width=target)
+    summary = result.summary
     if args.json:
-        summary = result.summary
         _print_json(
             {
                 "study": summary.study.name,
@@ -773,12 +787,78 @@ def _cmd_report(args: argparse.Namespace, console: Console, errors: Console) -> 
                     }
                     for (panel, series, x), iv in summary.throughput.items()
                 ],
+                "method": method_summary(summary),
+                # Leader minus each other series per setting, 95 % interval, method named.
+                "differences": [
+                    {
+                        "panel": r.panel,
+                        "x": r.x,
+                        "leader": r.leader,
+                        "series": series,
+                        "mean": d.mean,
+                        "low": d.low if d.half_width is not None else None,
+                        "high": d.high if d.half_width is not None else None,
+                        "method": d.method.value,
+                        "df": d.df,
+                        "seeds": list(d.seeds),
+                        "text": d.method_text(),
+                    }
+                    for r in summary.rankings
+                    for series, d in r.differences.items()
+                ],
+                "half_width_target": summary.target.text(),
+                "seeds_needed": [
+                    {
+                        "panel": a.panel,
+                        "x": a.x,
+                        "interval": a.series,
+                        "n": a.n,
+                        "half_width": a.half_width,
+                        "target": a.target,
+                        "needed": a.needed,
+                    }
+                    for a in summary.advice
+                    if not a.enough
+                ],
             }
         )
         return EXIT_OK
+    _print_comparisons(console, summary)
     for path in result.paths:
         console.print(f"wrote {escape(str(path))}", soft_wrap=True)
     return EXIT_OK
+
+
+def _print_comparisons(console: Console, summary: Any, most: int = 12) -> None:
+    """The leader's difference to each other series per setting, with the method named, and
+    whether the intervals meet the target half-width."""
+    lines = []
+    for r in summary.rankings:
+        where = ", ".join(
+            f"{axis}={label}"
+            for axis, label in ((summary.study.panel_axis, r.panel), (summary.study.x_axis, r.x))
+            if label is not None
+        )
+        prefix = f"{where}: " if where else ""
+        for series, d in r.differences.items():
+            sep = "" if d.half_width is None else ", separated" if d.low > 0 else ", not separated"
+            lines.append(
+                f"{prefix}{r.leader} − {series} = {d.text()} good parts/h ({d.method_text()}){sep}"
+            )
+    for line in lines[:most]:
+        console.print(escape(line), soft_wrap=True, highlight=False)
+    if len(lines) > most:
+        console.print(f"… {len(lines) - most} more differences in report.md (Comparisons)")
+    short = [a for a in summary.advice if not a.enough]
+    known = [a.needed for a in short if a.needed is not None]
+    if short:
+        more = f"; up to {max(known)} seeds needed" if known else ""
+        console.print(
+            f"{len(short)} of {len(summary.advice)} intervals are wider than "
+            f"{escape(summary.target.text())}{more} (report.md, Replications)",
+            soft_wrap=True,
+            highlight=False,
+        )
 
 
 def _cmd_plot(args: argparse.Namespace, console: Console, errors: Console) -> int:
