@@ -20,7 +20,8 @@ Output contract (extend it, never break it):
   runs also arrivals {robot: when it reached the destination of its last trip, s, or null}.
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
-  arrived, delivered).
+  arrived, delivered; with ``[battery]`` also charge_go, charge_start, charge_end, stranded,
+  with the charger as the station).
 - ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
   predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
   printed); started/finished are the print's start and end (for a job with nothing to print,
@@ -33,6 +34,9 @@ Output contract (extend it, never break it):
   the plan sent at t_sent; a plan holds until the robot's next), at most one per robot per
   second, samples at least half a second apart.
 - ``violations.csv``: the first violations in full, when there are any.
+- ``battery.csv`` (with ``[battery]``): t, robot, charge (share of capacity), state (working,
+  to_charger, charging, stranded), at least every 10 s per robot and at every change of state;
+  summary.json then has ``battery`` (`fleet.engine.energy.Energy.summary`).
 """
 
 from __future__ import annotations
@@ -53,7 +57,8 @@ from fleet.plugins import SolveReport
 
 __all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S", "PLAN_SAMPLE_S", "RUN_FILES"]
 
-#: Every file `Recorder.write` may write into a run directory (the last two only when needed).
+#: Every file a run may write into a run directory: `Recorder.write`'s (caps.csv and
+#: violations.csv only when needed) and, with ``[battery]``, `fleet.engine.energy`'s battery.csv.
 RUN_FILES = (
     "summary.json",
     "trajectories.csv",
@@ -63,6 +68,7 @@ RUN_FILES = (
     "plans.csv",
     "caps.csv",
     "violations.csv",
+    "battery.csv",
 )
 
 #: Shortest time (s) between two planned horizons the recorder keeps for one robot.

@@ -27,6 +27,7 @@ import simpy
 from fleet.bus import AgentHost, Exchange
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.dispatch import Dispatch
+from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.makeway import MakeWay
@@ -40,7 +41,7 @@ from fleet.engine.summary import cap_rows, check_safety, job_rows, summarise, ta
 from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
-from fleet.plugins import RobotSpec, SolveReport, load_dispatcher
+from fleet.plugins import RobotSpec, SolveReport, load_charging_policy, load_dispatcher
 from fleet.scenario import Scenario, check_fleet, parse_latency
 
 __all__ = ["World", "RunResult"]
@@ -120,6 +121,20 @@ class World:
             self.recorder,
             self.dispatcher,
         )
+        #: Batteries, chargers and the charging policy (`[battery]`); None: no batteries.
+        self.energy: Energy | None = None
+        if scenario.battery is not None:
+            policy = self._plugin("charging", load_charging_policy)
+            self.energy = Energy(
+                self.env,
+                scenario.battery,
+                scenario.source,
+                self.floor,
+                self.robots,
+                self.recorder,
+                self.dispatch,
+                policy,
+            )
         self.lifecycle = JobLifecycle(
             self.env,
             scenario,
@@ -254,6 +269,8 @@ class World:
                     robot.x, robot.y, robot.vx, robot.vy, robot.ax, robot.ay
                 )
             self.recorder.sample(robot.id, env.now, robot.x, robot.y, robot.vx, robot.vy)
+            if self.energy is not None:
+                self.energy.tick(robot)
             if robot.turn_rate is not None:
                 self.turning.follow_heading(robot)
             if robot.job is not None and at_rest_near(robot, robot.goal, tol):
@@ -264,6 +281,8 @@ class World:
             else:
                 # The bus round queued the command with its latency: blend what is in force.
                 robot.ax, robot.ay = robot.step_input(env.now, period)
+            if self.energy is not None:
+                self.energy.hold(robot)  # a flat battery brakes
             robot.tick += 1
             yield env.timeout(period)
 
@@ -351,6 +370,8 @@ class World:
             bus_rounds=self.rounds.count,
             bus_stats=self.exchange.stats,
         )
+        if self.energy is not None:
+            summary["battery"] = self.energy.summary(float(self.env.now))
         return RunResult(summary, safety, list(self.jobs))
 
     def write(self, out: Path) -> None:
@@ -367,6 +388,8 @@ class World:
             self.job_rows(),
             tasks,
         )
+        if self.energy is not None:
+            self.energy.write(out)
 
     def task_rows(self) -> list[tuple[str, str, str, float, float]]:
         """Every print task that started, as ``tasks.csv`` rows (see `summary.task_rows`)."""
