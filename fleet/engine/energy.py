@@ -88,6 +88,7 @@ class Energy:
         recorder: Recorder,
         dispatch: Dispatch,
         policy: ChargingPolicy,
+        policy_name: str,
     ) -> None:
         self.env = env
         self.battery = battery
@@ -95,6 +96,7 @@ class Energy:
         self.recorder = recorder
         self.dispatch = dispatch
         self.policy = policy
+        self.policy_name = policy_name
         self.chargers = {s.name: (s.x, s.y) for s in floor.spec.stations if s.kind == "charger"}
         if not self.chargers:
             raise ScenarioError(
@@ -143,7 +145,7 @@ class Energy:
             printing = max(0.0, min(t, rec.print_end_s) - max(t - dt, rec.print_start_s))
         used = b.drive_wh_per_m * step_m + (b.print_w * printing + b.idle_w * dt) / 3600.0
         gained = 0.0
-        if robot.charging:
+        if robot.charging and robot.job is None:  # a job given ends the charge at once
             gained = min(b.charge_w * dt / 3600.0, b.capacity_wh - cell.level_wh + used)
             cell.charging_s += dt
         cell.driven_m += step_m
@@ -285,7 +287,7 @@ class Energy:
         }
         cells = self.cells.values()
         return {
-            "policy": type(self.policy).name or type(self.policy).__name__,
+            "policy": self.policy_name,
             "capacity_wh": b.capacity_wh,
             "chargers": len(self.chargers),
             "charging_s": round(sum(c.charging_s for c in cells), 6),

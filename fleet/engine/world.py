@@ -134,6 +134,7 @@ class World:
                 self.recorder,
                 self.dispatch,
                 policy,
+                scenario.charging.name,
             )
         self.lifecycle = JobLifecycle(
             self.env,

@@ -2,8 +2,9 @@
 
 - ``threshold`` (`ThresholdCharging`): below `threshold` of its capacity a robot finishes its
   job, drives to the nearest free charger and charges to `target`, taking no jobs meanwhile.
-- ``opportunity`` (`OpportunityCharging`): an idle robot near a free charger charges there
-  until it is given a job (or full); below `safety` it charges as ``threshold`` does.
+- ``opportunity`` (`OpportunityCharging`): an idle robot below `below` near a free charger
+  charges there until it is given a job (or `full`); below `safety` it charges as
+  ``threshold`` does.
 
 Scenario options::
 

@@ -62,9 +62,10 @@ class ThresholdCharging(ChargingPolicy):
 
 
 class OpportunityCharging(ChargingPolicy):
-    """Charge whenever idle near a free charger: an idle robot within `radius_m` (straight
-    line) of a free charger goes there and charges until it is given a job or reaches `full`.
-    Below `safety` it charges as `ThresholdCharging` does (after its job, to `target`, no jobs
+    """Charge whenever idle near a free charger: an idle robot below `below` within `radius_m`
+    (straight line) of a free charger goes there and charges until it is given a job or reaches
+    `full` (`below` < `full`, so a robot that just left does not turn back at once). Below
+    `safety` it charges as `ThresholdCharging` does (after its job, to `target`, no jobs
     meanwhile), so it never runs flat waiting for an opportunity."""
 
     name = "opportunity"
@@ -72,8 +73,9 @@ class OpportunityCharging(ChargingPolicy):
     def __init__(
         self,
         radius_m: float = 15.0,
-        safety: float = 0.2,
+        safety: float = 0.25,
         target: float = 0.6,
+        below: float = 0.9,
         full: float = 0.98,
     ) -> None:
         super().__init__()
@@ -82,11 +84,12 @@ class OpportunityCharging(ChargingPolicy):
         self.radius_m = float(radius_m)
         self.safety = _share("safety", safety)
         self.target = _share("target", target)
+        self.below = _share("below", below)
         self.full = _share("full", full)
-        if not self.safety < self.target <= self.full:
+        if not (self.safety < self.target <= self.full and self.below < self.full):
             raise ValueError(
-                f"options safety = {safety!r}, target = {target!r}, full = {full!r}: must "
-                "keep safety < target <= full"
+                f"options safety = {safety!r}, target = {target!r}, below = {below!r}, "
+                f"full = {full!r}: must keep safety < target <= full and below < full"
             )
         #: Robots that fell below `safety` and charge to `target` before they work again.
         self._low: set[str] = set()
@@ -96,7 +99,7 @@ class OpportunityCharging(ChargingPolicy):
             self._low.add(status.robot)
             charger = nearest_free(status) or _nearest(status)
             return None if charger is None else charger.name
-        if status.has_job or status.charge >= self.full:
+        if status.has_job or status.charge >= self.below:
             return None
         charger = nearest_free(status, self.radius_m)
         return None if charger is None else charger.name

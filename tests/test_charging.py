@@ -1,0 +1,305 @@
+"""Batteries, chargers and charging policies: energy bookkeeping on real runs, robots that charge
+and go back to work, a robot that runs flat, the scenario's checks and the plugin contract."""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+import fleet.plugins.discovery as plugins_module
+from fleet.engine import World
+from fleet.errors import ScenarioError
+from fleet.plugins import CHARGING_GROUP, BatteryStatus, ChargingPolicy, load_charging_policy
+from fleet.plugins.testing import ConformanceError, check_charging_policy
+from fleet.scenario import REPO_ROOT, load_scenario
+from fleet_plugins.charging import OpportunityCharging, ThresholdCharging
+
+SHOP = (REPO_ROOT / "maps" / "shop_floor.toml").as_posix()
+
+
+def scripted(tmp_path: Path, battery: str, charging: str, jobs: str, duration: float = 900.0):
+    """A one-robot scenario on the shop floor starting at depot_a (6 m from charger_a)."""
+    path = tmp_path / "run.toml"
+    path.write_text(
+        textwrap.dedent(
+            f"""
+            [scenario]
+            map = "{SHOP}"
+            duration_s = {duration}
+            [robots]
+            count = 1
+            start = ["depot_a"]
+            [jobs]
+            mode = "scripted"
+            [battery]
+            {battery}
+            [charging]
+            {charging}
+            """
+        )
+        + textwrap.dedent(jobs)
+    )
+    return load_scenario(path)
+
+
+def events(world: World, robot: str = "r01") -> list[tuple[float, str, str]]:
+    return [(e.t, e.event, e.job) for e in world.recorder.events if e.robot == robot]
+
+
+def first(evs: list[tuple[float, str, str]], name: str) -> float:
+    return next(t for t, e, _ in evs if e == name)
+
+
+JOB_AT_20 = """
+[[jobs.scripted]]
+at_s = 20
+station = "cnc_1_in"
+print = [{ kind = "infill", start_s = 0, end_s = 60 }]
+"""
+
+
+def test_energy_used_is_per_metre_times_distance_plus_draws_times_their_hours() -> None:
+    scenario = load_scenario(
+        REPO_ROOT / "scenarios" / "charging.toml",
+        {"scenario.duration_s": 1500.0, "robots.count": 2, "jobs.rate_per_h": 12.0},
+    )
+    world = World(scenario)
+    summary = world.run().summary
+    assert world.energy is not None
+    battery = scenario.battery
+    assert battery is not None
+    per_robot = {p["id"]: p for p in summary["per_robot"]}
+    assert summary["jobs"]["handed_back"] == 0
+    printed = 0.0
+    for rid, cell in world.energy.cells.items():
+        track = world.recorder.trajectories[rid]
+        end = track.t[-1]
+        printing = sum(
+            min(rec.print_end_s, end) - rec.print_start_s
+            for rec in world.jobs
+            if rec.robot == rid and rec.print_start_s is not None and rec.print_end_s is not None
+        )
+        printed += printing
+        distance = per_robot[rid]["distance_m"]
+        want = (
+            battery.drive_wh_per_m * distance
+            + battery.print_w * printing / 3600.0
+            + battery.idle_w * end / 3600.0
+        )
+        assert cell.used_wh == pytest.approx(want, rel=1e-6, abs=1e-6)
+        assert cell.driven_m == pytest.approx(distance, abs=1e-6)
+        # What is left is what there was, less what was used, plus what the chargers gave.
+        start = battery.capacity_wh * battery.initial_share
+        assert cell.level_wh == pytest.approx(start - cell.used_wh + cell.charged_wh, abs=1e-9)
+        mine = summary["battery"]["per_robot"][rid]
+        assert mine["energy_used_wh"] == pytest.approx(want, rel=1e-6, abs=1e-5)
+        assert 0.0 <= mine["min_charge_share"] <= mine["charge_end_share"] <= 1.0
+    assert printed > 600.0  # the run printed and drove: the test could fail
+    assert summary["battery"]["stranded"] == 0
+    assert summary["violations"] == {k: 0 for k in summary["violations"]}
+
+
+def test_a_low_robot_charges_first_then_takes_the_job_and_delivers_it(tmp_path: Path) -> None:
+    scenario = scripted(
+        tmp_path,
+        "capacity_wh = 10.0\ninitial_share = 0.35\ncharge_w = 100.0\nidle_w = 5.0",
+        'name = "threshold"\noptions = { threshold = 0.4, target = 0.9 }',
+        JOB_AT_20,
+    )
+    world = World(scenario)
+    summary = world.run().summary
+    evs = events(world)
+    went, start, end = first(evs, "charge_go"), first(evs, "charge_start"), first(evs, "charge_end")
+    assigned, delivered = first(evs, "assigned"), first(evs, "delivered")
+    assert went == 0.0 < start < 20.0 < end <= assigned < delivered
+    robot = world.robots["r01"]
+    assert not robot.charging and robot.charger_at is None
+    cell = world.energy.cells["r01"]  # type: ignore[union-attr]
+    # Charged to the target (at most one step of draw below it), at the charger's rate.
+    assert summary["battery"]["per_robot"]["r01"]["charges"] == 1
+    assert cell.charged_wh == pytest.approx(100.0 * (end - start) / 3600.0, rel=1e-9)
+    assert summary["battery"]["charging_s"] == pytest.approx(end - start)
+    assert summary["jobs"]["completed"] == 1 and summary["battery"]["stranded"] == 0
+    world.write(tmp_path / "out")
+    rows = list(csv.DictReader((tmp_path / "out" / "battery.csv").open()))
+    assert {r["state"] for r in rows} >= {"to_charger", "charging", "working"}
+
+
+def test_an_opportunity_charger_leaves_at_once_for_a_job(tmp_path: Path) -> None:
+    scenario = scripted(
+        tmp_path,
+        "capacity_wh = 100.0\ninitial_share = 0.7\ncharge_w = 100.0",
+        'name = "opportunity"\noptions = { radius_m = 10.0 }',
+        JOB_AT_20,
+    )
+    world = World(scenario)
+    world.run()
+    evs = events(world)
+    start, end, assigned = (first(evs, e) for e in ("charge_start", "charge_end", "assigned"))
+    # It charged until the job came, and left at its next tick (no charge for that step).
+    assert start < 20.0 == assigned and end == assigned + scenario.robots[0].period_s
+    # Idle again after the delivery, next to the charger: it charges again.
+    delivered = first(evs, "delivered")
+    assert any(e == "charge_start" and t > delivered for t, e, _ in evs)
+
+
+def test_a_robot_that_runs_flat_is_stranded_braked_and_hands_its_job_back(tmp_path: Path) -> None:
+    scenario = scripted(
+        tmp_path,
+        "capacity_wh = 1.0\ninitial_share = 0.5\nprint_w = 60.0",
+        'name = "threshold"\noptions = { threshold = 0.0, target = 0.5 }',  # never charges
+        JOB_AT_20,
+    )
+    world = World(scenario)
+    summary = world.run().summary
+    evs = events(world)
+    stranded = first(evs, "stranded")
+    assert 20.0 < stranded < 60.0  # 0.5 Wh at 60 W lasts 30 s
+    assert first(evs, "handed_back") == stranded
+    assert summary["battery"]["stranded"] == 1 and summary["jobs"]["completed"] == 0
+    robot = world.robots["r01"]
+    assert robot.faulted and robot.vx == robot.vy == 0.0
+    track = world.recorder.trajectories["r01"]
+    after = [i for i, t in enumerate(track.t) if t > stranded + 10.0]
+    assert {(track.x[i], track.y[i]) for i in after} == {(robot.x, robot.y)}
+    assert summary["violations"] == {k: 0 for k in summary["violations"]}
+
+
+def test_a_scenario_without_battery_has_no_energy_and_no_battery_figures() -> None:
+    scenario = load_scenario(REPO_ROOT / "scenarios" / "default.toml").override(duration=30.0)
+    world = World(scenario)
+    summary = world.run().summary
+    assert world.energy is None and scenario.battery is None and "battery" not in summary
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "words"),
+    [
+        ("battery.capacity_wh", 0, "positive"),
+        ("battery.initial_share", 1.5, "share"),
+        ("battery.drive_wh_per_m", -1, ">= 0"),
+        ("battery.charge_w", "fast", "type"),
+    ],
+)
+def test_bad_battery_values_name_the_field_and_value(key: str, value: object, words: str) -> None:
+    with pytest.raises(ScenarioError, match=words) as info:
+        load_scenario(REPO_ROOT / "scenarios" / "charging.toml", {key: value})
+    assert info.value.field == key and info.value.value == value
+
+
+def test_a_battery_on_a_map_without_chargers_is_refused(tmp_path: Path) -> None:
+    scenario = load_scenario(
+        REPO_ROOT / "scenarios" / "charging.toml",
+        {"scenario.map": str(REPO_ROOT / "maps" / "paper_case3.toml"), "robots.start": ["start"]},
+    )
+    with pytest.raises(ScenarioError, match="no charger"):
+        World(scenario)
+
+
+def test_bad_policy_options_name_the_plugin_and_option() -> None:
+    with pytest.raises(Exception, match="target"):
+        load_charging_policy("threshold", {"threshold": 0.5, "target": 0.4})
+    with pytest.raises(Exception, match="below"):
+        load_charging_policy("opportunity", {"below": 0.99, "full": 0.98})
+
+
+# --- the plugin contract ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("factory", [ThresholdCharging, OpportunityCharging])
+def test_the_builtin_policies_pass_the_conformance_kit(factory: type[ChargingPolicy]) -> None:
+    check_charging_policy(factory)
+
+
+class NeverCharges(ChargingPolicy):
+    def go_charge(self, status: BatteryStatus) -> str | None:
+        return None
+
+    def leave(self, status: BatteryStatus) -> bool:
+        return True
+
+
+class MadeUpCharger(NeverCharges):
+    def go_charge(self, status: BatteryStatus) -> str | None:
+        return "the moon"
+
+
+class StaysForever(ChargingPolicy):
+    def go_charge(self, status: BatteryStatus) -> str | None:
+        return status.chargers[0].name
+
+    def leave(self, status: BatteryStatus) -> bool:
+        return False
+
+
+@pytest.mark.parametrize(
+    ("policy", "rule"),
+    [(NeverCharges, "no-flat-battery"), (MadeUpCharger, "known-charger"), (StaysForever, "full")],
+)
+def test_the_kit_fails_a_bad_policy_naming_the_rule(policy: type, rule: str) -> None:
+    with pytest.raises(ConformanceError, match=rule) as info:
+        check_charging_policy(policy)
+    assert info.value.rule.startswith(rule)
+
+
+THIRD_PARTY = '''
+from fleet.plugins import ChargingPolicy
+
+
+class EagerCharging(ChargingPolicy):
+    """Go to the nearest charger whenever idle below `below`; leave when full."""
+
+    def __init__(self, below: float = 0.99) -> None:
+        super().__init__()
+        self.below = below
+
+    def go_charge(self, status):
+        if status.has_job or status.charge >= self.below:
+            return None
+        free = [c for c in status.chargers if c.occupant in (None, status.robot)]
+        far = lambda c: (c.x - status.x) ** 2 + (c.y - status.y) ** 2
+        return min(free or status.chargers, key=far).name
+
+    def leave(self, status):
+        return status.charge >= 1.0
+
+    def takes_jobs(self, status):
+        return True
+'''
+
+
+def test_a_third_party_policy_registered_through_entry_points_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    module = f"acme_{tmp_path.name.replace('-', '_')}"
+    (tmp_path / f"{module}.py").write_text(THIRD_PARTY)
+    info = tmp_path / "acme_charging-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-charging\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(f"[{CHARGING_GROUP}]\neager = {module}:EagerCharging\n")
+    monkeypatch.setattr(sys, "path", [*sys.path, str(tmp_path)])
+    monkeypatch.setattr(plugins_module, "_CACHE", None)
+    found = {i.name: i for i in plugins_module.discover("charging", refresh=True)}
+    assert found["eager"].ok and found["eager"].distribution == "acme-charging"
+    assert {"threshold", "opportunity"} <= set(found)
+    policy = load_charging_policy("eager", {"below": 0.9})
+    check_charging_policy(type(policy), options={"below": 0.9})
+    scenario = scripted(
+        tmp_path,
+        "capacity_wh = 100.0\ninitial_share = 0.5\ncharge_w = 100.0",
+        'name = "eager"\noptions = { below = 0.9 }',
+        JOB_AT_20,
+        duration=300.0,
+    )
+    world = World(scenario)
+    summary = world.run().summary
+    evs = events(world)
+    assert first(evs, "charge_start") < 20.0 == first(evs, "assigned")
+    assert first(evs, "charge_end") == 20.25  # at its next tick
+    assert summary["battery"]["policy"] == "eager"
+    assert math.isclose(sum(1 for _, e, _ in evs if e == "delivered"), 1)
