@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 import sys
 import textwrap
 from pathlib import Path
@@ -303,3 +304,36 @@ def test_a_third_party_policy_registered_through_entry_points_runs(
     assert first(evs, "charge_end") == 20.25  # at its next tick
     assert summary["battery"]["policy"] == "eager"
     assert math.isclose(sum(1 for _, e, _ in evs if e == "delivered"), 1)
+
+
+# --- the replay ---------------------------------------------------------------------------------
+
+
+def test_the_replay_shows_each_robots_charge_and_when_it_charges(tmp_path: Path) -> None:
+    from fleet.view.replay import write_replay
+    from tests.test_replay import CHROMIUM, finish, screenshot
+
+    scenario = scripted(
+        tmp_path,
+        "capacity_wh = 10.0\ninitial_share = 0.35\ncharge_w = 100.0",
+        'name = "threshold"\noptions = { threshold = 0.4, target = 0.9 }',
+        JOB_AT_20,
+        duration=400.0,
+    )
+    world = World(scenario)
+    world.run()
+    run = tmp_path / "run"
+    world.write(run)
+    page = write_replay(run)
+    text = page.read_text(encoding="utf-8")
+    assert '"battery":{"t":[' in text
+    if CHROMIUM is None:
+        pytest.skip("chromium is not installed (Debian: apt-get install chromium)")
+    start = first(events(world), "charge_start")
+    work = tmp_path / "shot"
+    dom, _ = finish(screenshot(page, start + 60.0, work, (1280, 720)), work)
+    shown = re.search(r"r01: <span[^>]*>([^<]*)</span>", dom)
+    assert shown, dom[-2000:]
+    # 35 % at the start, less the trip, plus 60 s at 100 W of a 10 Wh battery: about 50 %.
+    m = re.fullmatch(r"idle \[battery (\d+) %, charging\]", shown.group(1))
+    assert m and 45 <= int(m.group(1)) <= 55, shown.group(1)

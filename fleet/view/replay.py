@@ -12,7 +12,8 @@ the controls, at the largest scale that shows the whole floor. It draws speed zo
 colours of `fleet.view.figures.zone_colours`, obstacles, the clearance band, rough floor,
 labelled stations and a scale bar; each robot as a filled circle of its radius in its own
 colour with a velocity tick, its planned horizon (``plans.csv``) as a thin dashed line, and its
-job state (idle, to station, printing, arrived and waiting for the print) as a ring and a label.
+job state (idle, to station, printing, arrived and waiting for the print) as a ring and a label;
+with ``[battery]`` the side panel also shows each robot's charge and whether it is charging.
 Labels never overlap: each is tried at several places around its robot, robots close together
 share one label, and a label with no free place is shortened, then left out. The side panel
 holds the robots and the jobs with their state at the current time, and the legend. Controls:
@@ -267,7 +268,8 @@ def replay_data(
     ``rough``, ``stations`` [{``name``, ``kind``, ``x``, ``y``}], ``clearance``; polygons are
     lists of rings, a ring a flat ``[x0, y0, x1, y1, ...]`` list), ``kinds`` (kind -> colour),
     ``v_max`` (m/s, for the velocity tick), ``robots`` [{``id``, ``colour``, ``radius``, ``t``,
-    ``x``, ``y``, ``plans`` {``sent``, ``pts``}, ``tasks`` [[start, end, kind, job]]}] and
+    ``x``, ``y``, ``plans`` {``sent``, ``pts``}, ``tasks`` [[start, end, kind, job]], with
+    ``[battery]`` also ``battery`` {``t``, ``charge``, ``state``} from battery.csv}] and
     ``jobs`` [{``id``, ``part``, ``station``, ``robot``, ``released``, ``assigned``, ``arrived``,
     ``print_end``, ``delivered``, ``due``, ``outcome``}] (None: not happened).
     """
@@ -313,6 +315,11 @@ def replay_data(
                 ],
             }
         )
+
+    battery = _battery(run.run_dir / "battery.csv")
+    for robot in robots:  # [battery]: charge and state over time, for the side panel
+        if robot["id"] in battery:
+            robot["battery"] = battery[robot["id"]]
 
     times = [float(tr.t[0]) for tr in run.tracks.values() if len(tr.t)]
     v_max = max((max(r.v_max) for r in floor.regions), default=1.0)
@@ -442,6 +449,21 @@ def _radius(run: RunData) -> dict[str, float]:
         ):
             radius[entry["id"]] = float(entry["radius_m"])
     return radius
+
+
+def _battery(path: Path) -> dict[str, dict[str, list[Any]]]:
+    """battery.csv by robot: ``{t, charge, state}`` lists (absent file: no batteries)."""
+    out: dict[str, dict[str, list[Any]]] = {}
+    if not path.is_file():
+        return out
+    for line, row in read_csv_rows(path, ("t", "robot", "charge", "state")):
+        mine = out.setdefault(row["robot"], {"t": [], "charge": [], "state": []})
+        mine["t"].append(round(csv_number(path, line, "t", row["t"], finite=True), 3))
+        mine["charge"].append(
+            round(csv_number(path, line, "charge", row["charge"], finite=True), 4)
+        )
+        mine["state"].append(row["state"])
+    return out
 
 
 def _jobs(run: RunData) -> list[dict[str, Any]]:
