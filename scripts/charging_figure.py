@@ -60,7 +60,8 @@ def mean(values: list[float]) -> float:
 
 
 def paired(a: dict[int, dict[str, Any]], b: dict[int, dict[str, Any]], key: str) -> str:
-    """Mean of b - a over the seeds both have, +- the 95 % t half-width."""
+    """Mean of b - a over the seeds both have, +- the 95 % t half-width (paired: the arms
+    share their seeds, so their jobs)."""
     seeds = sorted(set(a) & set(b))
     diffs = [b[s][key] - a[s][key] for s in seeds]
     if len(diffs) < 2:
@@ -68,7 +69,7 @@ def paired(a: dict[int, dict[str, Any]], b: dict[int, dict[str, Any]], key: str)
     m = mean(diffs)
     sd = math.sqrt(sum((d - m) ** 2 for d in diffs) / (len(diffs) - 1))
     half = t_quantile(len(diffs) - 1) * sd / math.sqrt(len(diffs))
-    return f"{m:+.2f} ± {half:.2f} (n = {len(diffs)} pairs)"
+    return f"{m:+.3g} ± {half:.3g} (n = {len(diffs)} pairs)"
 
 
 def table(arms: dict[str, dict[int, dict[str, Any]]]) -> str:
@@ -119,7 +120,8 @@ def main(argv: list[str]) -> int:
     if len(names) == 2:
         a, b = (arms[n] for n in names)
         print(f"\n{names[1]} - {names[0]}, good parts/h: {paired(a, b, 'throughput_good_per_h')}")
-        print(f"{names[1]} - {names[0]}, charging share: {paired(a, b, 'charging_share')}")
+        for key in ("completed", "charging_share", "min_charge_share"):
+            print(f"{names[1]} - {names[0]}, {key}: {paired(a, b, key)}")
     draw(arms, out)
     print(f"\nfigure: {out}")
     return 0
