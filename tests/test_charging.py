@@ -11,6 +11,8 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import fleet.plugins.discovery as plugins_module
 from fleet.engine import World
@@ -337,3 +339,58 @@ def test_the_replay_shows_each_robots_charge_and_when_it_charges(tmp_path: Path)
     # 35 % at the start, less the trip, plus 60 s at 100 W of a 10 Wh battery: about 50 %.
     m = re.fullmatch(r"idle \[battery (\d+) %, charging\]", shown.group(1))
     assert m and 45 <= int(m.group(1)) <= 55, shown.group(1)
+
+
+# --- invariants on random batteries ---------------------------------------------------------
+
+
+@settings(
+    max_examples=6, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+@given(
+    seed=st.integers(1, 1000),
+    policy=st.sampled_from(["threshold", "opportunity"]),
+    capacity=st.floats(8.0, 40.0),
+    initial=st.floats(0.2, 1.0),
+)
+def test_batteries_keep_the_fleet_safe_and_every_charger_to_one_robot(
+    seed: int, policy: str, capacity: float, initial: float
+) -> None:
+    scenario = load_scenario(
+        REPO_ROOT / "scenarios" / "charging.toml",
+        {
+            "scenario.seed": seed,
+            "scenario.duration_s": 900.0,
+            "robots.count": 3,
+            "jobs.rate_per_h": 20.0,
+            "battery.capacity_wh": capacity,
+            "battery.initial_share": initial,
+            "battery.charge_w": 400.0,
+            "charging.name": policy,
+            "charging.options": {},
+        },
+    )
+    world = World(scenario)
+    result = world.run()
+    s = result.summary
+    assert s["violations"] == {k: 0 for k in s["violations"]}, result.safety.examples
+    assert s["jobs"]["accounted"]
+    # A charger serves one robot at a time: its charge_start/charge_end intervals never overlap.
+    holder: dict[str, str | None] = {}
+    for e in world.recorder.events:
+        if e.event == "charge_start":
+            assert holder.get(e.station) is None, (e.t, e.station, holder)
+            holder[e.station] = e.robot
+        elif e.event == "charge_end":
+            assert holder.get(e.station) == e.robot, (e.t, e.station, holder)
+            holder[e.station] = None
+    occupants = [o for o in world.energy.occupant.values() if o is not None]  # type: ignore[union-attr]
+    assert len(occupants) == len(set(occupants))
+    battery = s["battery"]
+    assert battery["stranded"] == sum(e.event == "stranded" for e in world.recorder.events)
+    start = capacity * initial
+    for cell in world.energy.cells.values():  # type: ignore[union-attr]
+        assert 0.0 <= cell.level_wh <= capacity + 1e-9
+        assert cell.level_wh == pytest.approx(
+            max(start - cell.used_wh + cell.charged_wh, 0.0), abs=1e-6
+        )
