@@ -394,3 +394,42 @@ def test_batteries_keep_the_fleet_safe_and_every_charger_to_one_robot(
         assert cell.level_wh == pytest.approx(
             max(start - cell.used_wh + cell.charged_wh, 0.0), abs=1e-6
         )
+
+
+def test_fleet_run_shows_charging_in_its_key_figures_and_lists_the_policies(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from fleet.cli import main
+
+    scenario = REPO_ROOT / "scenarios" / "charging.toml"
+    args = ["run", str(scenario), "--duration", "240", "--out", str(tmp_path / "run")]
+    assert main([*args, "--no-figures", "--set", "battery.initial_share=0.2"]) == 0
+    printed = capsys.readouterr().out
+    # Every robot starts below the threshold and drives to a charger; two charge at once.
+    figures = re.search(
+        r"charging time \(fleet\) / charges\s*│\s*([\d.]+) h \((\d+)%\) / (\d+)", printed
+    )
+    assert figures and float(figures[1]) > 0 and int(figures[3]) == 2, printed
+    assert re.search(r"lowest charge / robots stranded\s*│\s*\d+% / 0", printed)
+    assert (tmp_path / "run" / "battery.csv").is_file()
+    assert main(["plugins"]) == 0
+    listed = capsys.readouterr().out
+    assert "threshold" in listed and "opportunity" in listed and "charging" in listed
+
+
+def test_the_study_sweeps_the_charging_policy_as_a_plugin_axis(tmp_path: Path) -> None:
+    from fleet.study.sweep import StudyError, load_study
+
+    study = load_study(REPO_ROOT / "studies" / "charging.toml")
+    assert [a.name for a in study.axes] == ["charging"]
+    assert [v.label for v in study.axes[0].values] == ["threshold", "opportunity"]
+    assert len(study.cells) == 10
+    names = {c.raw["charging"]["name"] for c in study.cells}
+    assert names == {"threshold", "opportunity"}
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        f'[study]\nscenario = "{(REPO_ROOT / "scenarios" / "charging.toml").as_posix()}"\n'
+        '[grid]\ncharging = [{ name = "threshold", options = { target = 2 } }]\n'
+    )
+    with pytest.raises(StudyError, match=r"grid\.charging\[0\].*target"):
+        load_study(bad)
