@@ -166,7 +166,7 @@ def test_a_robot_that_runs_flat_is_stranded_braked_and_hands_its_job_back(tmp_pa
     assert first(evs, "handed_back") == stranded
     assert summary["battery"]["stranded"] == 1 and summary["jobs"]["completed"] == 0
     robot = world.robots["r01"]
-    assert robot.faulted and robot.vx == robot.vy == 0.0
+    assert robot.faulted and robot.vx == robot.vy == 0.0 and robot.plan == ()
     track = world.recorder.trajectories["r01"]
     after = [i for i, t in enumerate(track.t) if t > stranded + 10.0]
     assert {(track.x[i], track.y[i]) for i in after} == {(robot.x, robot.y)}

@@ -128,11 +128,12 @@ class Energy:
             self._sample(robot, cell, t)
 
     def hold(self, robot: RobotState) -> None:
-        """A stranded robot brakes, whatever its controller commanded."""
+        """A stranded robot brakes, whatever its controller commanded, and shows no plan (its
+        neighbours take it to stay where it is)."""
         if self.cells[robot.id].stranded_s is not None:
-            robot.ax, robot.ay = brake_input(
-                robot.vx, robot.vy, robot.spec.period, robot.spec.a_max
-            )
+            spec = robot.spec
+            robot.ax, robot.ay = brake_input(robot.vx, robot.vy, spec.period, spec.a_max)
+            robot.plan = robot.thinned_plan = ()
 
     def _book(self, robot: RobotState, cell: Cell, t: float) -> None:
         b = self.battery
