@@ -387,8 +387,8 @@ def _output_arguments(p: argparse.ArgumentParser) -> None:
         "--no-figures",
         dest="figures",
         action="store_false",
-        help="skip trajectory.png, speed.png and gantt.png (they take about two seconds for an "
-        "hour of a few robots; `fleet plot RUN_DIR` draws them later)",
+        help="skip trajectory.png, speed.png, gantt.png, states.png and wip.png (they take about "
+        "two seconds for an hour of a few robots; `fleet plot RUN_DIR` draws them later)",
     )
 
 
@@ -546,6 +546,7 @@ def _fresh_run_dir(out: Path, force: bool) -> None:
     run files in it (and nothing else: a folder with other files is never emptied)."""
     from fleet.engine.recorder import RUN_FILES
     from fleet.view.figures import GANTT_PNG, SPEED_PNG, TRAJECTORY_PNG
+    from fleet.view.kpi_figures import STATES_PNG, WIP_PNG
     from fleet.view.replay import REPLAY_HTML
 
     if not out.exists():
@@ -568,7 +569,7 @@ def _fresh_run_dir(out: Path, force: bool) -> None:
             "no figure or table of an earlier run survives: give another --out, or --force to "
             "clear the earlier run's files first",
         )
-    ours = {*RUN_FILES, TRAJECTORY_PNG, SPEED_PNG, GANTT_PNG, REPLAY_HTML}
+    ours = {*RUN_FILES, TRAJECTORY_PNG, SPEED_PNG, GANTT_PNG, STATES_PNG, WIP_PNG, REPLAY_HTML}
     foreign = [p.name for p in found if p.name not in ours or not p.is_file()]
     if foreign:
         raise InputError(
@@ -943,6 +944,38 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _disruption_rows(s: dict) -> list[tuple[str, str]]:
+    """The key figures of what went wrong: hand-backs (by reason) and the print time they
+    scrapped, deadlocks and faults (a summary without them, from an older run: none shown)."""
+    rows = []
+    handbacks = s.get("handbacks")
+    if isinstance(handbacks, dict):
+        rows.append(
+            (
+                "hand-backs / scrapped print",
+                f"{handbacks['count']} / {handbacks['scrapped_print_s']:.1f} s",
+            )
+        )
+        rows += [(f"  hand-backs: {why}", str(n)) for why, n in handbacks["by_reason"].items()]
+    if "deadlocks" in s:
+        rows.append(("deadlocks", str(s["deadlocks"])))
+    faults = s.get("faults")
+    if isinstance(faults, dict):
+        rows.append(
+            (
+                "faults: agents lost / left",
+                f"{faults.get('agents_lost', 0)} / {faults.get('agents_left', 0)}",
+            )
+        )
+        rows.append(
+            (
+                "faults: robots orphaned / rejoined",
+                f"{faults.get('robots_orphaned', 0)} / {faults.get('robots_rejoined', 0)}",
+            )
+        )
+    return rows
+
+
 def _kpi_table(console: Console, s: dict) -> None:
     t = Table(title="Key figures", show_header=True, header_style="bold")
     t.add_column("figure")
@@ -967,6 +1000,7 @@ def _kpi_table(console: Console, s: dict) -> None:
         ("violations: print speed", str(v["print_speed"])),
         ("violations: collision", str(v["collision"])),
         ("jobs failed / in progress", f"{jobs['failed']} / {jobs['in_progress']}"),
+        *_disruption_rows(s),
         ("digest", s["digest"][:16]),
     ]
     solver = s["solver"]
@@ -1003,9 +1037,52 @@ def _kpi_table(console: Console, s: dict) -> None:
         ]
     for robot, at in (s.get("arrivals") or {}).items():
         rows.insert(-1, (f"arrival {robot}", "-" if at is None else f"{at:.1f} s"))
+    rows[-1:-1] = _time_rows(s)
     for name, value in rows:
         t.add_row(name, value)
     console.print(t)
+
+
+def _time_rows(s: dict) -> list[tuple[str, str]]:
+    """The KPI table's rows of KPIs over time: waits, lead times, queue and WIP, the fleet's
+    share of time in each state, the warm-up left out and the one MSER-5 suggests."""
+    rows = []
+
+    for key, what, stats in (
+        ("assign_wait_s", "wait for assignment", ("mean", "p50", "p95")),
+        ("lead_time_s", "lead time", ("p50", "p95")),
+    ):
+        d = s.get(key) or {}
+        if d.get("n"):
+            values = " / ".join(f"{d[k]:.1f}" for k in stats)
+            rows.append((f"{what} {' / '.join(stats)}", f"{values} s"))
+    if s.get("wip_mean") is not None:
+        rows.append(("queue / WIP mean", f"{s['queue_mean']:.2f} / {s['wip_mean']:.2f} jobs"))
+    shares = (s.get("states") or {}).get("shares")
+    if shares:
+        pct = {k: f"{100 * v:.0f}" for k, v in shares.items()}
+        rows.append(
+            (
+                "robots' time idle / driving empty / blocked",
+                f"{pct['idle']} / {pct['driving_empty']} / {pct['blocked']} %",
+            )
+        )
+        rows.append(
+            (
+                "robots' time printing driving / at rest",
+                f"{pct['printing_driving']} / {pct['printing_at_rest']} %",
+            )
+        )
+        if shares["faulted"] or shares["charging"]:
+            rows.append(
+                ("robots' time faulted / charging", f"{pct['faulted']} / {pct['charging']} %")
+            )
+    if s.get("warmup_s"):
+        rows.append(("warm-up left out of the KPIs", f"{s['warmup_s']:g} s"))
+    if s.get("suggested_warmup_s") is not None:
+        limit = " (limit: run longer)" if s.get("suggested_warmup_at_limit") else ""
+        rows.append(("warm-up suggested (MSER-5, WIP)", f"{s['suggested_warmup_s']:.0f} s{limit}"))
+    return rows
 
 
 def _cmd_plugins(args: argparse.Namespace, console: Console, errors: Console) -> int:

@@ -127,6 +127,9 @@ def test_a_low_robot_charges_first_then_takes_the_job_and_delivers_it(tmp_path: 
     assert summary["battery"]["per_robot"]["r01"]["charges"] == 1
     assert cell.charged_wh == pytest.approx(100.0 * (end - start) / 3600.0, rel=1e-9)
     assert summary["battery"]["charging_s"] == pytest.approx(end - start)
+    # The per-robot state shares (fleet.engine.activity) count the same time as charging.
+    shares = summary["states"]["robots"]["r01"]
+    assert shares["charging"]["seconds"] == pytest.approx(end - start)
     assert summary["jobs"]["completed"] == 1 and summary["battery"]["stranded"] == 0
     world.write(tmp_path / "out")
     rows = list(csv.DictReader((tmp_path / "out" / "battery.csv").open()))
@@ -144,8 +147,8 @@ def test_an_opportunity_charger_leaves_at_once_for_a_job(tmp_path: Path) -> None
     world.run()
     evs = events(world)
     start, end, assigned = (first(evs, e) for e in ("charge_start", "charge_end", "assigned"))
-    # It charged until the job came, and left at its next tick (no charge for that step).
-    assert start < 20.0 == assigned and end == assigned + scenario.robots[0].period_s
+    # It charged until the job came, and left at once.
+    assert start < 20.0 == assigned == end
     # Idle again after the delivery, next to the charger: it charges again.
     delivered = first(evs, "delivered")
     assert any(e == "charge_start" and t > delivered for t, e, _ in evs)
@@ -302,8 +305,7 @@ def test_a_third_party_policy_registered_through_entry_points_runs(
     world = World(scenario)
     summary = world.run().summary
     evs = events(world)
-    assert first(evs, "charge_start") < 20.0 == first(evs, "assigned")
-    assert first(evs, "charge_end") == 20.25  # at its next tick
+    assert first(evs, "charge_start") < 20.0 == first(evs, "assigned") == first(evs, "charge_end")
     assert summary["battery"]["policy"] == "eager"
     assert math.isclose(sum(1 for _, e, _ in evs if e == "delivered"), 1)
 

@@ -296,7 +296,8 @@ def test_report_on_a_directory_without_a_study_exits_1_naming_it(tmp_path, capsy
 
 # -- fleet plot and fleet replay ------------------------------------------------------------------
 def test_plot_draws_trajectory_speed_and_gantt_of_a_run(run_dir, capsys):
-    pictures = [run_dir / n for n in ("trajectory.png", "speed.png", "gantt.png")]
+    names = ("trajectory.png", "speed.png", "gantt.png", "states.png", "wip.png")
+    pictures = [run_dir / n for n in names]
     assert not any(p.exists() for p in pictures)  # --no-figures left them to `fleet plot`
     assert main(["plot", str(run_dir)]) == 0
     assert written(capsys.readouterr().out) == pictures
@@ -312,6 +313,8 @@ def test_a_sweep_cell_is_a_run_directory_plot_and_replay_read(swept, capsys):
         "trajectory.png",
         "speed.png",
         "gantt.png",
+        "states.png",
+        "wip.png",
     ]
     assert main(["replay", str(cell)]) == 0
     assert (cell / "replay.html").is_file()

@@ -253,6 +253,12 @@ class Dispatch:
         then, and it may take any other job at once. The job is offered again when that hold
         ends. A job handed back more than `[jobs] max_handbacks` times fails, so a job nobody
         can deliver does not loop.
+
+        Any caller may hand a job back (the bus rounds for blocked robots and lost agents;
+        breakdowns...): the attempt ends on the job's record (`JobRecord.attempts`) with
+        `reason` as given, and its print is scrapped; `reason` is what attempts.csv and
+        summary.json's ``handbacks.by_reason`` show, so keep it short and alike for alike
+        causes (``"breakdown"``, ``"handed back: blocked"``).
         """
         t = self.env.now
         if rec is robot.job:
@@ -263,6 +269,9 @@ class Dispatch:
             return
         # The caps the robot printed under stay on its record for the safety check.
         robot.past_caps.extend(rec.caps.window(-math.inf, t).pieces)
+        # The attempt is kept, with what it printed (scrapped) and why it ended.
+        failing = rec.handbacks + 1 > self.scenario.jobs.max_handbacks
+        rec.end_attempt(t, "failed" if failing else "handed_back", reason)
         rec.robot = rec.assigned_s = rec.started_s = rec.arrived_s = rec.print_start_s = None
         rec.caps = CapSchedule()
         rec.leg = 0
@@ -277,7 +286,7 @@ class Dispatch:
             self.env.timeout(hold).callbacks.append(lambda _event: self.request())
         self.recorder.stats["jobs_handed_back"] += 1
         self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
-        if rec.handbacks > self.scenario.jobs.max_handbacks:
+        if failing:
             rec.failed_s, rec.failure = t, reason
             self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
             log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)

@@ -128,9 +128,13 @@ class Energy:
             self._sample(robot, cell, t)
 
     def hold(self, robot: RobotState) -> None:
-        """A stranded robot brakes, whatever its controller commanded, and shows no plan (its
-        neighbours take it to stay where it is)."""
-        if self.cells[robot.id].stranded_s is not None:
+        """After the bus round: a robot given a job at its charger leaves it now (the policy let
+        it work); a stranded robot brakes, whatever its controller commanded, and shows no plan
+        (its neighbours take it to stay where it is)."""
+        cell = self.cells[robot.id]
+        if cell.reserved and robot.job is not None:
+            self._release(robot, cell, self.env.now, "job")
+        if cell.stranded_s is not None:
             spec = robot.spec
             robot.ax, robot.ay = brake_input(robot.vx, robot.vy, spec.period, spec.a_max)
             robot.plan = robot.thinned_plan = ()

@@ -25,10 +25,12 @@ import numpy as np
 import simpy
 
 from fleet.bus import AgentHost, Exchange
+from fleet.engine.activity import Activity
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.kpis import STATES_CSV, WIP_CSV, wip_rows, write_rows
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
@@ -37,12 +39,19 @@ from fleet.engine.recorder import Recorder
 from fleet.engine.rounds import BusRounds
 from fleet.engine.safety import SafetyReport
 from fleet.engine.sensing import Sensing
-from fleet.engine.summary import cap_rows, check_safety, job_rows, summarise, task_rows
+from fleet.engine.summary import (
+    attempt_rows,
+    cap_rows,
+    check_safety,
+    job_rows,
+    summarise,
+    task_rows,
+)
 from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec, SolveReport, load_charging_policy, load_dispatcher
-from fleet.scenario import Scenario, check_fleet, parse_latency
+from fleet.scenario import Scenario, check_fleet, check_warmup, parse_latency
 
 __all__ = ["World", "RunResult"]
 
@@ -87,6 +96,7 @@ class World:
         self.scenario = scenario
         self.floor = load_run_floor(scenario, floor)
         check_fleet(scenario, self.floor.spec.clearance)
+        check_warmup(scenario)  # --duration or code may have made the run shorter than it
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
@@ -97,6 +107,8 @@ class World:
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
         self.recorder = Recorder(list(self.robots))
+        #: Time per robot per state (`fleet.engine.activity`), counted step by step.
+        self.activity = Activity(self.robots, scenario.arrival_tolerance_m, scenario.warmup_s)
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
         placement.check_reachable(homes, self.job_source.stations)
@@ -284,6 +296,7 @@ class World:
                 robot.ax, robot.ay = robot.step_input(env.now, period)
             if self.energy is not None:
                 self.energy.hold(robot)  # a flat battery brakes
+            self.activity.step(robot, env.now)
             robot.tick += 1
             yield env.timeout(period)
 
@@ -370,6 +383,7 @@ class World:
             wall_time_s=wall_time,
             bus_rounds=self.rounds.count,
             bus_stats=self.exchange.stats,
+            activity=self.activity,
         )
         if self.energy is not None:
             summary["battery"] = self.energy.summary(float(self.env.now))
@@ -388,21 +402,31 @@ class World:
             cap_rows(tasks, self.scenario.print_caps),
             self.job_rows(),
             tasks,
+            self.attempt_rows(),
         )
+        end = min(float(self.env.now), self.scenario.duration_s)
+        states = self.activity.rows(end)
+        write_rows(out / STATES_CSV, ("robot", "state", "seconds", "share"), states)
+        write_rows(out / WIP_CSV, ("t", "queue", "wip"), wip_rows(self.recorder.events))
         if self.energy is not None:
             self.energy.write(out)
 
-    def task_rows(self) -> list[tuple[str, str, str, float, float]]:
-        """Every print task that started, as ``tasks.csv`` rows (see `summary.task_rows`)."""
+    def task_rows(self) -> list[tuple[str, str, str, float, float, int]]:
+        """Every print task that started, in every attempt, as ``tasks.csv`` rows (see
+        `summary.task_rows`)."""
         return task_rows(self.jobs)
 
-    def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
+    def cap_rows(self) -> list[tuple[str, str, str, float, float, float, int]]:
         """Every print cap a robot was under, as ``caps.csv`` rows (see `summary.cap_rows`)."""
         return cap_rows(self.task_rows(), self.scenario.print_caps)
 
     def job_rows(self) -> list[dict[str, Any]]:
         """One row per job for ``jobs.csv`` (see `summary.job_rows`)."""
         return job_rows(self.jobs, self.env.now)
+
+    def attempt_rows(self) -> list[dict[str, Any]]:
+        """One row per attempt at a job for ``attempts.csv`` (see `summary.attempt_rows`)."""
+        return attempt_rows(self.jobs, self.env.now)
 
     @property
     def stats(self) -> dict[str, int]:

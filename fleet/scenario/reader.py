@@ -234,6 +234,9 @@ class Scenario:
     #: the run depends on the wall clock; a number: that many seconds for every controller
     #: command (reproducible). See docs/fleet.md "Compute latency".
     latency: Latency = None
+    #: Start-up transient (s) the KPIs leave out (``[scenario] warmup_s``): throughput, lead
+    #: times, waits and state shares are measured over [warmup_s, the run's end).
+    warmup_s: float = 0.0
     #: Robots' batteries (``[battery]``); None: they never run out (no chargers are used).
     battery: BatteryConfig | None = None
     #: The charging policy (``[charging]``), used only with `battery`.
@@ -414,7 +417,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
             bus.lost_after_s,
             f"must not exceed bus.timeout_s ({bus.timeout_s:g})",
         )
-    return Scenario(
+    scenario = Scenario(
         name=path.stem if sc.name is None else sc.name,
         source=src,
         map=map_path,
@@ -450,11 +453,14 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         quality=quality,
         rough_v_max=file.floor.rough_v_max,
         latency=None if sc.latency == "none" else sc.latency,
+        warmup_s=sc.warmup_s,
         battery=None
         if file.battery is None
         else BatteryConfig(**msgspec.structs.asdict(file.battery)),
         charging=PluginChoice(file.charging.name, file.charging.options),
     )
+    check_warmup(scenario)
+    return scenario
 
 
 def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
@@ -509,6 +515,22 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
                 f"wider than the map's floor.clearance ({clearance:g} m), the room the map keeps "
                 "round walls and obstacles: raise the clearance in the map or use a smaller radius",
             )
+
+
+def check_warmup(scenario: Scenario) -> None:
+    """`Scenario.warmup_s` is a number >= 0 and shorter than the run (`duration_s`, however it
+    was set: file, ``--duration`` or code); `ScenarioError` naming the file and field otherwise."""
+    w = scenario.warmup_s
+    if isinstance(w, bool) or not isinstance(w, int | float) or not (0 <= w < math.inf):
+        raise ScenarioError(scenario.source, "scenario.warmup_s", w, "must be a number >= 0")
+    if w >= scenario.duration_s:
+        raise ScenarioError(
+            scenario.source,
+            "scenario.warmup_s",
+            w,
+            f"must be less than the run's duration_s ({scenario.duration_s:g} s): the KPIs are "
+            "measured after the warm-up",
+        )
 
 
 def parse_latency(src: str, fld: str, value: Any, *, parse_text: bool = False) -> Latency:

@@ -114,6 +114,13 @@ class ScenarioTable(_Table, kw_only=True):
         Meta(description="No progress for this long (s) with robots close by: a deadlock; 0: off."),
     ] = 30.0
     latency: _Latency = "none"
+    warmup_s: Annotated[
+        NonNegative,
+        Meta(
+            description="KPIs (throughput, lead times, waits, state shares) leave out the "
+            "start-up [0, warmup_s); below duration_s."
+        ),
+    ] = 0.0
 
 
 class RobotsTable(_Table, kw_only=True):

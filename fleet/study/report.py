@@ -53,6 +53,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from fleet.errors import InputError
+from fleet.study.warmup import warmup_lines
 from fleet.view.figures import csv_number
 
 __all__ = [
@@ -856,6 +857,7 @@ def report_markdown(summary: Summary) -> str:
                 f"| {_md(s)} | " + " | ".join(str(counts[k]) for k in VIOLATION_KINDS) + " |"
             )
 
+    out += warmup_lines(r.run_dir for r in ok)  # MSER-5's suggestions (fleet.study.warmup)
     out += [
         "",
         "## Figures",

@@ -593,7 +593,8 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     """Run one cell into its run directory and return its record; never raises.
 
     The run directory holds what ``fleet run --no-figures`` writes (summary.json,
-    trajectories.csv, events.csv, jobs.csv, tasks.csv, caps.csv, plans.csv, violations.csv), plus
+    trajectories.csv, events.csv, jobs.csv, attempts.csv, tasks.csv, caps.csv, plans.csv,
+    violations.csv), plus
     ``cell.json`` (the record, written atomically) and, when the cell failed, ``error.txt`` (the
     traceback). Any exception (plugin options that do not suit the robots, a crash mid-run, a
     full disk) makes the record
