@@ -51,6 +51,9 @@ def load(study: Path) -> dict[str, dict[int, dict[str, Any]]]:
                 "min_charge_share": battery["min_charge_share"],
                 "energy_used_wh": battery["energy_used_wh"],
                 "stranded": battery["stranded"],
+                # Release to assignment (s), and the fleet's share of time idle (KPIs over time).
+                "assign_wait_s": (summary.get("assign_wait_s") or {}).get("mean"),
+                "idle_share": (summary.get("states") or {}).get("shares", {}).get("idle"),
             }
     return arms
 
@@ -72,11 +75,16 @@ def paired(a: dict[int, dict[str, Any]], b: dict[int, dict[str, Any]], key: str)
     return f"{m:+.3g} ± {half:.3g} (n = {len(diffs)} pairs)"
 
 
+def _mean_of(cells: list[dict[str, Any]], key: str, form: str) -> str:
+    values = [c[key] for c in cells if c[key] is not None]
+    return format(mean(values), form) if values else "-"
+
+
 def table(arms: dict[str, dict[int, dict[str, Any]]]) -> str:
     rows = [
         "| policy | good parts/h | jobs completed | charging share | charges | "
-        "lowest charge | energy used (Wh) | stranded |",
-        "|---|---|---|---|---|---|---|---|",
+        "lowest charge | energy used (Wh) | stranded | wait for a robot (s) | idle share |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for label, seeds in arms.items():
         cells = list(seeds.values())
@@ -88,7 +96,9 @@ def table(arms: dict[str, dict[int, dict[str, Any]]]) -> str:
             f"| {min(c['min_charge_share'] for c in cells):.1%} "
             f"(mean {mean([c['min_charge_share'] for c in cells]):.1%}) "
             f"| {mean([c['energy_used_wh'] for c in cells]):.0f} "
-            f"| {sum(c['stranded'] for c in cells)} of {len(cells) * 4} robot-runs |"
+            f"| {sum(c['stranded'] for c in cells)} of {len(cells) * 4} robot-runs "
+            f"| {_mean_of(cells, 'assign_wait_s', '.0f')} "
+            f"| {_mean_of(cells, 'idle_share', '.1%')} |"
         )
     return "\n".join(rows)
 
@@ -120,7 +130,7 @@ def main(argv: list[str]) -> int:
     if len(names) == 2:
         a, b = (arms[n] for n in names)
         print(f"\n{names[1]} - {names[0]}, good parts/h: {paired(a, b, 'throughput_good_per_h')}")
-        for key in ("completed", "charging_share", "min_charge_share"):
+        for key in ("completed", "charging_share", "min_charge_share", "assign_wait_s"):
             print(f"{names[1]} - {names[0]}, {key}: {paired(a, b, key)}")
     draw(arms, out)
     print(f"\nfigure: {out}")
