@@ -541,48 +541,6 @@ def _cmd_keys(args: argparse.Namespace, console: Console, errors: Console) -> in
 
 
 # -- running a scenario -----------------------------------------------------------------------
-def _fresh_run_dir(out: Path, force: bool) -> None:
-    """Make sure `out` holds nothing from an earlier run: refuse it, or with `force` clear the
-    run files in it (and nothing else: a folder with other files is never emptied)."""
-    from fleet.engine.recorder import RUN_FILES
-    from fleet.view.figures import GANTT_PNG, SPEED_PNG, TRAJECTORY_PNG
-    from fleet.view.kpi_figures import STATES_PNG, WIP_PNG
-    from fleet.view.replay import REPLAY_HTML
-
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise InputError(
-            "command line", "--out", str(out), "is a file; a run directory must be a folder"
-        )
-    found = sorted(out.iterdir())
-    if not found:
-        return
-    names = ", ".join(p.name + ("/" if p.is_dir() else "") for p in found[:6])
-    more = f" and {len(found) - 6} more" if len(found) > 6 else ""
-    if not force:
-        raise InputError(
-            "command line",
-            "--out",
-            str(out),
-            f"already holds files ({names}{more}); a run directory is written fresh, so that "
-            "no figure or table of an earlier run survives: give another --out, or --force to "
-            "clear the earlier run's files first",
-        )
-    ours = {*RUN_FILES, TRAJECTORY_PNG, SPEED_PNG, GANTT_PNG, STATES_PNG, WIP_PNG, REPLAY_HTML}
-    foreign = [p.name for p in found if p.name not in ours or not p.is_file()]
-    if foreign:
-        raise InputError(
-            "command line",
-            "--out",
-            str(out),
-            f"holds files no run writes ({', '.join(foreign[:6])}); --force clears only a "
-            "run's own files, so choose another --out",
-        )
-    for path in found:
-        path.unlink()
-
-
 @contextmanager
 def _stop_on_interrupt(errors: Console) -> Iterator[Callable[[], bool]]:
     """A first Ctrl-C asks the run to stop at its next step (`World.run`'s `stop`); a second
@@ -615,8 +573,10 @@ def _simulate(
     """Build the World, run it with a progress bar, write the run directory, show key figures."""
     # The default folder is the run's own, by name and seed: running again replaces that run.
     # A folder the user names is refused when it holds a run, unless --force.
+    from fleet.api.runs import fresh_run_dir, run_problems, simulate
+
     out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
-    _fresh_run_dir(out, args.force or args.out is None)
+    fresh_run_dir(out, args.force or args.out is None)
     talk = errors if args.json else console  # --json keeps stdout for the JSON
     world = make_world()
     if not args.quiet:
@@ -635,14 +595,8 @@ def _simulate(
             rtf = f"{now / wall:,.1f}x real time" if wall > 0 and now > 0 else ""
             progress.update(task, completed=now, rtf=rtf)
 
-        result = world.run(advance, stop=stop)
-    summary = result.summary
-    world.write(out)
+        summary = simulate(world, out, progress=advance, stop=stop, figures=args.figures)
     complete = summary["complete"]
-    if args.figures and complete:
-        from fleet.view.figures import save_run_figures
-
-        save_run_figures(out, world.floor)
     if args.json:
         _print_json({"run_dir": str(out), "complete": complete, "summary": summary})
     elif not args.quiet:
@@ -656,21 +610,10 @@ def _simulate(
             f"`fleet plot {out}` draws them)",
         )
         return EXIT_INTERRUPTED
-    jobs = summary["jobs"]
-    if not jobs["accounted"]:
-        _error(
-            errors,
-            f"job accounting broken: {jobs['released']} released, {jobs['completed']} completed, "
-            f"{jobs['failed']} failed, {jobs['in_progress']} in progress "
-            f"(see {out / 'events.csv'})",
-        )
-        return EXIT_FAILED
-    if summary["stuck_robots"]:
-        # A robot that could never move makes the run's figures meaningless: not a quiet exit 0.
-        for stuck in summary["stuck_robots"]:
-            _error(errors, f"robot {stuck['robot']} could never move: {stuck['reason']}")
-        return EXIT_FAILED
-    return EXIT_OK
+    problems = run_problems(summary, out)
+    for problem in problems:
+        _error(errors, problem)
+    return EXIT_FAILED if problems else EXIT_OK
 
 
 def _run_progress(errors: Console, quiet: bool) -> Progress:

@@ -24,6 +24,7 @@ from fleet.scenario.reader import (
     load_scenario,
     parse_latency,
     parse_scenario,
+    parse_with_settings,
 )
 from fleet.scenario.spec import ScenarioFile
 
@@ -42,6 +43,7 @@ __all__ = [
     "check_warmup",
     "load_scenario",
     "parse_scenario",
+    "parse_with_settings",
     "default_scenario",
     "REPO_ROOT",
     "ScenarioFile",

@@ -10,6 +10,7 @@ field and the value. Command-line options override the file through `Scenario.ov
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 import tomllib
@@ -51,6 +52,7 @@ __all__ = [
     "parse_latency",
     "load_scenario",
     "parse_scenario",
+    "parse_with_settings",
     "default_scenario",
     "REPO_ROOT",
 ]
@@ -225,6 +227,11 @@ class Scenario:
     #: Overrides of the G-code feature -> task kind table.
     classify: dict[str, str] = field(default_factory=dict)
     quality: QualityConfig = field(default_factory=QualityConfig)
+    #: The TOML tables the scenario was read from (empty for one built field by field) and the
+    #: file their relative paths are relative to: `fleet.api.change` writes dotted settings
+    #: over them and validates them again. Not compared: equal scenarios run alike.
+    tables: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    origin: Path | None = field(default=None, compare=False, repr=False)
     #: When set, every rough area of the map is also a speed zone with this limit (m/s): the
     #: paper's "varying" strategy, slow over bumps and rough floor.
     rough_v_max: float | None = None
@@ -340,12 +347,27 @@ def load_scenario(
         raise ScenarioError(src, "(file)", src, f"cannot read the scenario file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
+    return parse_with_settings(raw, path, settings, settings_source=settings_source)
+
+
+def parse_with_settings(
+    raw: dict[str, Any],
+    path: str | Path,
+    settings: Mapping[str, Any] | None,
+    *,
+    source: str | None = None,
+    settings_source: str = "--set",
+) -> Scenario:
+    """`parse_scenario` of `raw` (left as it is) with `settings` written over it by dotted key,
+    as `load_scenario` takes them; an error a setting causes names `settings_source`, the key
+    and the value. `fleet.api.change` applies settings to a scenario's tables this way."""
     if not settings:
-        return parse_scenario(raw, path)
+        return parse_scenario(raw, path, source=source)
+    raw = copy.deepcopy(raw)
     for key, value in settings.items():
         _put_setting(raw, key, value, settings_source)
     try:
-        return parse_scenario(raw, path)
+        return parse_scenario(raw, path, source=source)
     except ScenarioError as exc:
         if not any(_within(exc.field, key) for key in settings):
             raise
@@ -420,6 +442,8 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
     scenario = Scenario(
         name=path.stem if sc.name is None else sc.name,
         source=src,
+        tables=copy.deepcopy(raw),
+        origin=path,
         map=map_path,
         duration_s=sc.duration_s,
         seed=sc.seed,

@@ -64,9 +64,12 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fleet.errors import FleetError, InputError, ScenarioError
+
+if TYPE_CHECKING:
+    from fleet.scenario import Scenario
 
 __all__ = [
     "StudyError",
@@ -80,6 +83,7 @@ __all__ = [
     "SweepInterrupted",
     "KPI_COLUMNS",
     "load_study",
+    "parse_study",
     "run_study",
     "run_cell",
     "dask_executor",
@@ -283,8 +287,6 @@ def load_study(path: str | Path) -> Study:
         value its scenario field rejects, or names a plugin nobody registered. The message
         names the study file, the field (e.g. ``grid.robots[1]``) and the value.
     """
-    from fleet.scenario import parse_scenario
-
     path = Path(path)
     src = str(path)
     try:
@@ -295,8 +297,21 @@ def load_study(path: str | Path) -> Study:
         raise StudyError(src, "(file)", src, f"cannot read the study file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
+    return parse_study(raw, path)
+
+
+def parse_study(raw: dict[str, Any], path: Path, *, base_scenario: Scenario | None = None) -> Study:
+    """Validate a study's tables `raw` as if read from the file `path` (`load_study`).
+
+    With `base_scenario` (one that keeps the tables it was read from, as `fleet.api`'s do), its
+    tables are the base and ``[study] scenario`` must be left out: how `fleet.api.sweep` sweeps
+    a scenario made in code. Errors name `path`.
+    """
+    from fleet.scenario import parse_scenario
+
+    src = str(path)
     _no_unknown(src, "", raw, ("study", "grid"))
-    st = raw.get("study")
+    st = raw.get("study", {} if base_scenario is not None else None)
     if not isinstance(st, dict):
         raise StudyError(src, "study", st, "a [study] table with at least `scenario` is required")
     _no_unknown(src, "study.", st, ("name", "scenario", "seeds", "duration_s"))
@@ -304,23 +319,17 @@ def load_study(path: str | Path) -> Study:
     if not isinstance(name, str) or not name:
         raise StudyError(src, "study.name", name, "must be a non-empty string")
     base_value = st.get("scenario")
-    if not isinstance(base_value, str):
-        raise StudyError(
-            src, "study.scenario", base_value, "is required: the base scenario file (a string)"
-        )
-    base = (path.parent / base_value).resolve()
-    try:
-        base_raw = tomllib.loads(base.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise StudyError(src, "study.scenario", base_value, f"no such file ({base})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StudyError(
-            src, "study.scenario", base_value, f"cannot read the scenario: {exc}"
-        ) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyError(
-            src, "study.scenario", base_value, f"the scenario is not valid TOML: {exc}"
-        ) from None
+    if base_scenario is not None:
+        if base_value is not None or not base_scenario.tables or base_scenario.origin is None:
+            why = "a study of a scenario in code takes no scenario file"
+            if base_value is None:
+                why = "the scenario has no tables to sweep (load it, or build it from a dict)"
+            raise StudyError(src, "study.scenario", base_value, why)
+        base_value = base_scenario.source
+        base = base_scenario.origin.resolve()
+        base_raw = copy.deepcopy(dict(base_scenario.tables))
+    else:
+        base, base_raw = _read_base(src, path, base_value)
     seeds = _seeds(src, st.get("seeds", 1))
     duration = st.get("duration_s")
     if duration is not None and not _is_positive(duration):
@@ -393,6 +402,28 @@ def load_study(path: str | Path) -> Study:
         axes=axes,
         cells=tuple(cells),
     )
+
+
+def _read_base(src: str, path: Path, base_value: Any) -> tuple[Path, dict[str, Any]]:
+    """The base scenario file ``[study] scenario`` names (relative to the study) and its tables."""
+    if not isinstance(base_value, str):
+        raise StudyError(
+            src, "study.scenario", base_value, "is required: the base scenario file (a string)"
+        )
+    base = (path.parent / base_value).resolve()
+    try:
+        base_raw = tomllib.loads(base.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise StudyError(src, "study.scenario", base_value, f"no such file ({base})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StudyError(
+            src, "study.scenario", base_value, f"cannot read the scenario: {exc}"
+        ) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyError(
+            src, "study.scenario", base_value, f"the scenario is not valid TOML: {exc}"
+        ) from None
+    return base, base_raw
 
 
 def _no_unknown(src: str, prefix: str, table: dict[str, Any], allowed: tuple[str, ...]) -> None:
@@ -675,7 +706,9 @@ def run_study(
         end). A given executor (e.g. from `dask_executor`) is used as is and not shut down;
         its workers must see `out_dir` on the same path.
     workers:
-        Processes of the pool created when `executor` is None (default: the CPU count).
+        Processes of the pool created when `executor` is None (default: the CPU count); 0 runs
+        the cells one after another in this process (`fleet.api.sweep`'s ``jobs=0``: no process
+        to start, and no ``__main__`` guard needed in a script).
     progress:
         Called in this process as ``progress(record, done, total)`` per cell reused or
         finished; ``record["skipped"]`` tells which.
@@ -693,8 +726,8 @@ def run_study(
         On Ctrl-C (KeyboardInterrupt): the cells still running are stopped (the local pool's
         workers are terminated), what finished is kept, study.json says ``"complete": false``.
     """
-    if workers is not None and (not _is_int(workers) or workers < 1):
-        raise ValueError(f"workers = {workers!r}: must be a whole number >= 1 (or None)")
+    if workers is not None and (not _is_int(workers) or workers < 0):
+        raise ValueError(f"workers = {workers!r}: must be a whole number >= 0 (or None)")
     out = Path(out_dir).resolve()
     (out / "cells").mkdir(parents=True, exist_ok=True)
     # Incomplete until the last cell has its record: a sweep stopped in any way says so.
@@ -759,9 +792,12 @@ def _run_todo(
     out: Path,
     finished: Callable[[Cell, dict[str, Any]], None],
 ) -> None:
-    """Run the cells of `todo` on `executor`, or on local process pools."""
+    """Run the cells of `todo` on `executor`, on local process pools, or (`workers` 0) here."""
     if executor is not None:
         _run_cells(executor, todo, study, out, finished, own=False)
+    elif workers == 0:
+        for cell in todo:
+            finished(cell, run_cell(study.spec(cell, out)))
     elif todo:
         size = min(workers or os.cpu_count() or 1, len(todo))
         # A worker that dies (killed, out of memory) breaks the whole pool and every cell still
