@@ -1045,6 +1045,19 @@ def _kpi_table(console: Console, s: dict) -> None:
             ),
             ("commands later than their period", str(latency["late"])),
         ]
+    battery = s.get("battery")
+    if battery:  # [battery]: the fleet's time at the chargers, and robots that ran flat
+        rows[-1:-1] = [
+            (
+                "charging time (fleet) / charges",
+                f"{battery['charging_s'] / 3600:.2f} h ({battery['charging_share']:.0%}) / "
+                f"{battery['charges']}",
+            ),
+            (
+                "lowest charge / robots stranded",
+                f"{battery['min_charge_share']:.0%} / {battery['stranded']}",
+            ),
+        ]
     for robot, at in (s.get("arrivals") or {}).items():
         rows.insert(-1, (f"arrival {robot}", "-" if at is None else f"{at:.1f} s"))
     rows[-1:-1] = _time_rows(s)

@@ -75,6 +75,12 @@ class Dispatch:
         #: Jobs to announce at the next bus round (auctions), and when each was last announced.
         self._announce: set[str] = set()
         self._announced_s: dict[str, float] = {}
+        #: Robots the charging policy keeps from new jobs (`fleet.engine.energy`).
+        self.off_duty: set[str] = set()
+
+    def available(self, robot: RobotState) -> bool:
+        """Whether `robot` may be given jobs: in service and not kept off duty to charge."""
+        return robot.in_service and robot.id not in self.off_duty
 
     def request(self) -> None:
         """Ask for a dispatch: at this instant (assigners), or at the next bus round (auctions)."""
@@ -98,7 +104,7 @@ class Dispatch:
             return  # already run at this instant, before a bus round
         self._scheduled = False
         open_jobs = [rec for rec in self.jobs if rec.open]
-        idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
+        idle = [r for r in self.robots.values() if r.job is None and self.available(r)]
         if not open_jobs or not idle:
             return
         if not self._apply_assignments(open_jobs, self.dispatcher.assign):
@@ -114,7 +120,7 @@ class Dispatch:
             free = {
                 r.id
                 for r in self.robots.values()
-                if r.job is None and not r.faulted and r.id not in held
+                if r.job is None and self.available(r) and r.id not in held
             }
             if free:
                 self._apply_assignments(
@@ -122,14 +128,14 @@ class Dispatch:
                 )
 
     def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
-        """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
-        and so are those in `exclude`)."""
+        """The robots as dispatchers see them (robots out of service or off duty are left out:
+        they take no jobs, and so are those in `exclude`)."""
         return [
             RobotStatus(
                 r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
             )
             for r in self.robots.values()
-            if not r.faulted and r.id not in exclude
+            if self.available(r) and r.id not in exclude
         ]
 
     def announcements(self, t: float) -> list[Announcement]:
@@ -165,7 +171,7 @@ class Dispatch:
             # A robot that gave a job back lately does not win it again yet.
             and b.robot not in open_jobs[b.job].held_off(t)
             and b.robot in self.robots
-            and not self.robots[b.robot].faulted
+            and self.available(self.robots[b.robot])
             and not self.robots[b.robot].queue
         ]
         self.recorder.stats["bids"] += len(bids)
@@ -214,7 +220,8 @@ class Dispatch:
             robot = self.robots.get(a.robot) if valid else None
             # A robot takes a job when idle, or (auctions) behind its current one if none waits.
             busy = robot is not None and (
-                robot.faulted or (robot.job is not None and (not queue or bool(robot.queue)))
+                not self.available(robot)
+                or (robot.job is not None and (not queue or bool(robot.queue)))
             )
             if rec is None or robot is None or busy or a.job in taken_jobs:
                 self.recorder.stats["assignments_rejected"] += 1

@@ -205,7 +205,7 @@ def destination_stations(floor: Floor, config: JobsConfig, source: str) -> list[
                     f"no such station on {floor.source} (known: {', '.join(sorted(known))})",
                 )
         return list(config.stations)
-    names = [s.name for s in floor.spec.stations if s.kind != "depot"]
+    names = [s.name for s in floor.spec.stations if s.kind not in ("depot", "charger")]
     if not names:
         raise ScenarioError(
             source,

@@ -98,7 +98,8 @@ class MakeWay:
 
     def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
         """Where `robot` heads now: its spot aside while it still holds one, else where its job
-        sends it, else home (or nowhere, idle without `return_home`)."""
+        sends it, else its charger (`RobotState.charger_at`), else home (or nowhere, idle
+        without `return_home`)."""
         aside = robot.aside
         if aside is not None and not self._still_needed(robot, aside, t):
             robot.aside = aside = None
@@ -106,6 +107,8 @@ class MakeWay:
             return aside.spot
         if robot.goal is not None:
             return robot.goal
+        if robot.charger_at is not None:
+            return robot.charger_at
         return robot.home if robot.return_home else None
 
     def ask(

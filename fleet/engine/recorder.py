@@ -34,7 +34,9 @@ Output contract (extend it, never break it):
   warm-up).
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
-  arrived, delivered, and deadlock, make_way, handed_back, failed, fault, rejoined).
+  arrived, delivered, and deadlock, make_way, handed_back, failed, fault, rejoined; with
+  ``[battery]`` also charge_go, charge_start, charge_end, stranded, with the charger as the
+  station).
 - ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
   predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
   printed); started/finished are the print's start and end (for a job with nothing to print,
@@ -60,6 +62,9 @@ Output contract (extend it, never break it):
   [warmup_s, end) (summary.json ``states``; defined in `fleet.engine.activity`).
 - ``wip.csv``: t, queue, wip: jobs released and not assigned, and released and neither
   delivered nor failed, from t = 0 and at every time either changes (`fleet.engine.kpis`).
+- ``battery.csv`` (with ``[battery]``): t, robot, charge (share of capacity), state (working,
+  to_charger, charging, stranded), at least every 10 s per robot and at every change of state;
+  summary.json then has ``battery`` (`fleet.engine.energy.Energy.summary`).
 """
 
 from __future__ import annotations
@@ -91,7 +96,8 @@ __all__ = [
 ]
 
 #: Every file a run writes into its run directory (caps.csv and violations.csv only when
-#: needed; states.csv and wip.csv come from `fleet.engine.kpis`, written by `World.write`).
+#: needed; states.csv and wip.csv come from `fleet.engine.kpis`, written by `World.write`;
+#: battery.csv, with ``[battery]``, from `fleet.engine.energy`).
 RUN_FILES = (
     "summary.json",
     "trajectories.csv",
@@ -104,6 +110,7 @@ RUN_FILES = (
     "violations.csv",
     "states.csv",
     "wip.csv",
+    "battery.csv",
 )
 
 #: Shortest time (s) between two planned horizons the recorder keeps for one robot.

@@ -28,6 +28,7 @@ from fleet.bus import AgentHost, Exchange
 from fleet.engine.activity import Activity
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.dispatch import Dispatch
+from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.kpis import STATES_CSV, WIP_CSV, wip_rows, write_rows
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
@@ -49,7 +50,7 @@ from fleet.engine.summary import (
 from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
-from fleet.plugins import RobotSpec, SolveReport, load_dispatcher
+from fleet.plugins import RobotSpec, SolveReport, load_charging_policy, load_dispatcher
 from fleet.scenario import Scenario, check_fleet, check_warmup, parse_latency
 
 __all__ = ["World", "RunResult"]
@@ -132,6 +133,21 @@ class World:
             self.recorder,
             self.dispatcher,
         )
+        #: Batteries, chargers and the charging policy (`[battery]`); None: no batteries.
+        self.energy: Energy | None = None
+        if scenario.battery is not None:
+            policy = self._plugin("charging", load_charging_policy)
+            self.energy = Energy(
+                self.env,
+                scenario.battery,
+                scenario.source,
+                self.floor,
+                self.robots,
+                self.recorder,
+                self.dispatch,
+                policy,
+                scenario.charging.name,
+            )
         self.lifecycle = JobLifecycle(
             self.env,
             scenario,
@@ -266,6 +282,8 @@ class World:
                     robot.x, robot.y, robot.vx, robot.vy, robot.ax, robot.ay
                 )
             self.recorder.sample(robot.id, env.now, robot.x, robot.y, robot.vx, robot.vy)
+            if self.energy is not None:
+                self.energy.tick(robot)
             if robot.turn_rate is not None:
                 self.turning.follow_heading(robot)
             if robot.job is not None and at_rest_near(robot, robot.goal, tol):
@@ -276,6 +294,8 @@ class World:
             else:
                 # The bus round queued the command with its latency: blend what is in force.
                 robot.ax, robot.ay = robot.step_input(env.now, period)
+            if self.energy is not None:
+                self.energy.hold(robot)  # a flat battery brakes
             self.activity.step(robot, env.now)
             robot.tick += 1
             yield env.timeout(period)
@@ -365,6 +385,8 @@ class World:
             bus_stats=self.exchange.stats,
             activity=self.activity,
         )
+        if self.energy is not None:
+            summary["battery"] = self.energy.summary(float(self.env.now))
         return RunResult(summary, safety, list(self.jobs))
 
     def write(self, out: Path) -> None:
@@ -386,6 +408,8 @@ class World:
         states = self.activity.rows(end)
         write_rows(out / STATES_CSV, ("robot", "state", "seconds", "share"), states)
         write_rows(out / WIP_CSV, ("t", "queue", "wip"), wip_rows(self.recorder.events))
+        if self.energy is not None:
+            self.energy.write(out)
 
     def task_rows(self) -> list[tuple[str, str, str, float, float, int]]:
         """Every print task that started, in every attempt, as ``tasks.csv`` rows (see

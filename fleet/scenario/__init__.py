@@ -9,6 +9,7 @@ never the file.
 
 from fleet.scenario.reader import (
     REPO_ROOT,
+    BatteryConfig,
     BusConfig,
     JobsConfig,
     Latency,
@@ -33,6 +34,7 @@ __all__ = [
     "ScriptedJob",
     "JobsConfig",
     "BusConfig",
+    "BatteryConfig",
     "QualityConfig",
     "Scenario",
     "Latency",

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+import msgspec
+
 from fleet.errors import ScenarioError
 from fleet.printing import PrintSchedule, PrintTask
 from fleet.scenario.spec import (
@@ -43,6 +45,7 @@ __all__ = [
     "ScriptedJob",
     "JobsConfig",
     "BusConfig",
+    "BatteryConfig",
     "QualityConfig",
     "Scenario",
     "Latency",
@@ -139,6 +142,23 @@ class BusConfig:
 
 
 @dataclass(frozen=True)
+class BatteryConfig:
+    """Every robot's battery (``[battery]``; see `fleet.engine.energy`).
+
+    The battery draws `drive_wh_per_m` per metre driven, `print_w` while printing and `idle_w`
+    at all times; a charger fills it at `charge_w`. It starts at `initial_share` of
+    `capacity_wh`.
+    """
+
+    capacity_wh: float = 500.0
+    drive_wh_per_m: float = 0.05
+    print_w: float = 60.0
+    idle_w: float = 0.0
+    initial_share: float = 1.0
+    charge_w: float = 300.0
+
+
+@dataclass(frozen=True)
 class QualityConfig:
     """How printed parts are judged (see `fleet.printing.quality`).
 
@@ -224,6 +244,10 @@ class Scenario:
     #: Start-up transient (s) the KPIs leave out (``[scenario] warmup_s``): throughput, lead
     #: times, waits and state shares are measured over [warmup_s, the run's end).
     warmup_s: float = 0.0
+    #: Robots' batteries (``[battery]``); None: they never run out (no chargers are used).
+    battery: BatteryConfig | None = None
+    #: The charging policy (``[charging]``), used only with `battery`.
+    charging: PluginChoice = field(default_factory=lambda: PluginChoice("threshold"))
 
     def print_schedule(self, job: ScriptedJob) -> PrintSchedule | None:
         """The print schedule of a scripted job under this scenario's caps (None: no print)."""
@@ -454,6 +478,10 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         rough_v_max=file.floor.rough_v_max,
         latency=None if sc.latency == "none" else sc.latency,
         warmup_s=sc.warmup_s,
+        battery=None
+        if file.battery is None
+        else BatteryConfig(**msgspec.structs.asdict(file.battery)),
+        charging=PluginChoice(file.charging.name, file.charging.options),
     )
     check_warmup(scenario)
     return scenario

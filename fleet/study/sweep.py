@@ -13,6 +13,7 @@ A study file (TOML) names a base scenario, the seeds, and a ``[grid]`` whose key
     rate_per_h = [6, 12]                     # jobs.rate_per_h
     map = ["../maps/shop_floor.toml"]        # scenario.map, relative to the STUDY file
     dispatcher = ["greedy"]                  # [dispatcher]: a plugin name or a table
+    charging = ["threshold", "opportunity"]  # [charging] (with [battery]): the same
     controller = [                           # [controller]: a plugin name or a table
         "follower",                          #   (label: the name)
         { label = "fixed 0.2", name = "fixed_speed", options = { speed = 0.2 } },
@@ -20,9 +21,10 @@ A study file (TOML) names a base scenario, the seeds, and a ``[grid]`` whose key
     "quality.tolerance_mm" = [0.05, 0.08]    # any other key: a dotted path into the scenario
 
 A cell's scenario is the base file's tables with, in this order, the study's ``duration_s``, each
-axis's value and the seed written in. Plugin axes replace the whole ``[controller]`` or
-``[dispatcher]`` table (the base's options are for the base's plugin); dotted axes write their
-value as is, so relative paths in them resolve against the base scenario's folder.
+axis's value and the seed written in. Plugin axes replace the whole ``[controller]``,
+``[dispatcher]`` or ``[charging]`` table (the base's options are for the base's plugin); dotted
+axes write their value as is, so relative paths in them resolve against the base scenario's
+folder.
 
 A *cell* is one point of the grid with one seed. `load_study` builds and validates every cell's
 scenario before anything runs, so a bad value fails at once with a `StudyError` naming the study
@@ -94,6 +96,7 @@ NAMED_AXES: dict[str, tuple[str, ...]] = {
     "map": ("scenario", "map"),
     "dispatcher": ("dispatcher",),
     "controller": ("controller",),
+    "charging": ("charging",),
 }
 
 #: Results-table columns taken from each cell's summary.json, in order, with their place in it.
@@ -474,7 +477,7 @@ def _axis(src: str, study: Path, key: str, values: Any, base_raw: dict[str, Any]
     out: list[AxisValue] = []
     for i, value in enumerate(values):
         at = f"{where}[{i}]"
-        if key in ("controller", "dispatcher"):
+        if key in ("controller", "dispatcher", "charging"):
             item = _plugin_value(src, at, value)
         elif key == "map":
             if not isinstance(value, str):
@@ -500,7 +503,7 @@ def _grid_field(key: str) -> str:
 
 
 def _plugin_value(src: str, at: str, value: Any) -> AxisValue:
-    """A controller/dispatcher axis value: a plugin name, or {name, options, label}."""
+    """A controller/dispatcher/charging axis value: a plugin name, or {name, options, label}."""
     if isinstance(value, str):
         return AxisValue(value, {"name": value})
     if not isinstance(value, dict):
@@ -560,7 +563,7 @@ def _plugins() -> dict[str, set[str]]:
 
     return {
         kind: {info.name for info in discover(kind) if info.ok}
-        for kind in ("controller", "dispatcher")
+        for kind in ("controller", "dispatcher", "charging")
     }
 
 
@@ -585,9 +588,13 @@ def _check_plugins(
             )
         # Build it once, so options the plugin rejects fail here and not in every cell.
         from fleet.errors import PluginError
-        from fleet.plugins import load_controller, load_dispatcher
+        from fleet.plugins import load_charging_policy, load_controller, load_dispatcher
 
-        loader = load_controller if kind == "controller" else load_dispatcher
+        loader = {
+            "controller": load_controller,
+            "dispatcher": load_dispatcher,
+            "charging": load_charging_policy,
+        }[kind]
         try:
             loader(name, getattr(scenario, kind).options)
         except PluginError as exc:

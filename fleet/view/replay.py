@@ -14,7 +14,8 @@ labelled stations and a scale bar; each robot as a filled circle of its radius i
 colour with a velocity tick, its planned horizon (``plans.csv``) as a thin dashed line, and its
 job state (idle, to station, printing, arrived and waiting for the print) as a ring and a label;
 a print that its robot will hand back (scrapped, ``attempts.csv``) has a dashed ring, and a red
-cross marks where a robot handed a job back, for `HANDBACK_MARK_S` simulated seconds after.
+cross marks where a robot handed a job back, for `HANDBACK_MARK_S` simulated seconds after;
+with ``[battery]`` the side panel also shows each robot's charge and whether it is charging.
 Labels never overlap: each is tried at several places around its robot, robots close together
 share one label, and a label with no free place is shortened, then left out. The side panel
 holds the robots and the jobs with their state at the current time, and the legend. Controls:
@@ -280,7 +281,8 @@ def replay_data(
     ``assigned``, ``arrived``, ``print_end``, ``delivered``, ``due``, ``outcome``}] (None: not
     happened), ``attempts`` [{``job``, ``attempt``, ``robot``, ``assigned``, ``ended``,
     ``result``, ``reason``, ``printed``, ``scrapped``}] (every robot's try at a job, from
-    ``attempts.csv``; empty for a run written without it) and ``handback_mark_s``.
+    ``attempts.csv``; empty for a run written without it) and ``handback_mark_s``; with
+    ``[battery]`` each robot also has ``battery`` {``t``, ``charge``, ``state``} (battery.csv).
     """
     floor = run.floor
     view_transform(floor.bounds)  # bad bounds fail here, with a message, not in the browser
@@ -324,6 +326,11 @@ def replay_data(
                 ],
             }
         )
+
+    battery = _battery(run.run_dir / "battery.csv")
+    for robot in robots:  # [battery]: charge and state over time, for the side panel
+        if robot["id"] in battery:
+            robot["battery"] = battery[robot["id"]]
 
     times = [float(tr.t[0]) for tr in run.tracks.values() if len(tr.t)]
     v_max = max((max(r.v_max) for r in floor.regions), default=1.0)
@@ -468,6 +475,21 @@ def _radius(run: RunData) -> dict[str, float]:
         ):
             radius[entry["id"]] = float(entry["radius_m"])
     return radius
+
+
+def _battery(path: Path) -> dict[str, dict[str, list[Any]]]:
+    """battery.csv by robot: ``{t, charge, state}`` lists (absent file: no batteries)."""
+    out: dict[str, dict[str, list[Any]]] = {}
+    if not path.is_file():
+        return out
+    for line, row in read_csv_rows(path, ("t", "robot", "charge", "state")):
+        mine = out.setdefault(row["robot"], {"t": [], "charge": [], "state": []})
+        mine["t"].append(round(csv_number(path, line, "t", row["t"], finite=True), 3))
+        mine["charge"].append(
+            round(csv_number(path, line, "charge", row["charge"], finite=True), 4)
+        )
+        mine["state"].append(row["state"])
+    return out
 
 
 def _jobs(run: RunData) -> list[dict[str, Any]]:

@@ -285,6 +285,16 @@ function stateAt(r, t) {
   return { key: "to", text: "to " + to, ring: C.station };
 }
 
+// [battery] runs: the charge (interpolated between battery.csv samples) and what it is doing.
+function batteryAt(r, t) {
+  const b = r.battery, i = b ? bisect(b.t, t) : -1;
+  if (i < 0) return "";
+  const j = Math.min(i + 1, b.t.length - 1), span = b.t[j] - b.t[i];
+  const share = span > 0 ? b.charge[i] + (b.charge[j] - b.charge[i]) * (t - b.t[i]) / span : b.charge[i];
+  const st = b.state[i] === "working" ? "" : ", " + b.state[i].replace("_", " ");
+  return " [battery " + Math.round(100 * share) + " %" + st + "]";
+}
+
 function planAt(r, t) {
   const i = bisect(r.plans.sent, t);
   return i < 0 ? null : r.plans.pts[i];
@@ -516,9 +526,10 @@ let states = {};  // what updatePanel showed last: robot and job states
 function updatePanel(t, now) {
   states = { robots: {}, jobs: {} };
   now.forEach(({ r, s }) => { states.robots[r.id] = { key: s.key, text: s.text }; });
-  now.forEach(({ s }, i) => {
-    if (robotText[i].textContent !== s.text) {
-      robotText[i].textContent = s.text;
+  now.forEach(({ r, s }, i) => {
+    const text = s.text + batteryAt(r, t);
+    if (robotText[i].textContent !== text) {
+      robotText[i].textContent = text;
       robotText[i].className = s.key === "idle" ? "st-idle" : "st-assigned";
     }
   });
