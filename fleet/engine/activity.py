@@ -18,8 +18,8 @@ warm-up), for every robot. The states, first match wins:
     A print is under way and the robot does not move (at its destination, or held on the way:
     the print goes on either way, so printing counts before being held).
 ``blocked``
-    Blocked or waiting: not printing, it has work (a job, or a trip of its own such as to a
-    charger: `RobotState.goal`) and is held. That is: it is stepping aside for another robot
+    Blocked or waiting: not printing, it has work (a job, `RobotState.goal`, or a trip to a
+    charger, `RobotState.charger_at`) and is held. That is: it is stepping aside for another robot
     (`RobotState.aside`, moving there or waiting there), or it stands still farther than the
     arrival tolerance from its goal. A robot stalled in a deadlock, waiting for a way through,
     or waiting at rest short of its goal is here.
@@ -69,7 +69,7 @@ def robot_state(robot: RobotState, t: float, tol: float) -> str:
     job = robot.job
     if job is not None and job.printing(t):
         return "printing_driving" if moving else "printing_at_rest"
-    goal = robot.goal
+    goal = robot.goal or robot.charger_at
     if goal is not None and robot.aside is not None:
         return "blocked"
     if moving:
