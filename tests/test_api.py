@@ -309,9 +309,9 @@ def test_docs_api_shows_the_examples_real_output(example):
     text = (REPO_ROOT / "docs" / "api.md").read_text(encoding="utf-8")
     block = re.search(r"<!-- output of notebook_study.py -->\n```text\n(.*?)```", text, re.S)
     assert block is not None, "docs/api.md lost the example's output block"
-    if "pandas" in sys.modules:
-        pytest.skip("with pandas installed the example also prints a data frame")
     shown, printed = block[1].splitlines(), example[1].splitlines()
+    if "pandas" not in sys.modules:  # the one line the example prints only with pandas
+        shown = [line for line in shown if not line.startswith("data frame: ")]
     assert len(shown) == len(printed)
     for want, got in zip(shown, printed, strict=True):
         if want.startswith("tables: "):

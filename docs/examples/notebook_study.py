@@ -48,7 +48,8 @@ print("first job:", {k: first[k] for k in ("id", "robot", "released_s", "deliver
 try:
     import pandas as pd  # not needed by mambot-fleet; one line makes a data frame
 
-    print(pd.DataFrame(jobs).describe())
+    frame = pd.DataFrame(jobs)
+    print(f"data frame: {frame.shape[0]} rows x {frame.shape[1]} columns")
 except ImportError:
     pass
 
