@@ -97,8 +97,33 @@ def _clip(value: float, bounds: Bounds) -> float:
     return min(max(value, bounds[0]), bounds[1])
 
 
+class _Cut:
+    """`low`, `high` and `clipped` of a ``mean ± half_width`` cut to `bounds`."""
+
+    mean: float
+    half_width: float | None
+    bounds: Bounds
+
+    @property
+    def low(self) -> float:
+        """Lower end of the interval, cut to `bounds` (the mean itself without an interval)."""
+        return _clip(self.mean - (self.half_width or 0.0), self.bounds)
+
+    @property
+    def high(self) -> float:
+        """Upper end of the interval, cut to `bounds` (the mean itself without an interval)."""
+        return _clip(self.mean + (self.half_width or 0.0), self.bounds)
+
+    @property
+    def clipped(self) -> bool:
+        """A bound cut the interval: it is no longer symmetric about the mean."""
+        if self.half_width is None:
+            return False
+        return self.low > self.mean - self.half_width or self.high < self.mean + self.half_width
+
+
 @dataclass(frozen=True)
-class Interval:
+class Interval(_Cut):
     """A mean across seeds with its two-sided Student t confidence interval.
 
     Attributes
@@ -124,23 +149,6 @@ class Interval:
     bounds: Bounds = UNBOUNDED
     sd: float | None = None
     confidence: float = CONFIDENCE
-
-    @property
-    def low(self) -> float:
-        """Lower end of the interval, cut to `bounds` (the mean itself without an interval)."""
-        return _clip(self.mean - (self.half_width or 0.0), self.bounds)
-
-    @property
-    def high(self) -> float:
-        """Upper end of the interval, cut to `bounds` (the mean itself without an interval)."""
-        return _clip(self.mean + (self.half_width or 0.0), self.bounds)
-
-    @property
-    def clipped(self) -> bool:
-        """A bound cut the interval: it is no longer symmetric about the mean."""
-        if self.half_width is None:
-            return False
-        return self.low > self.mean - self.half_width or self.high < self.mean + self.half_width
 
     @property
     def df(self) -> int | None:
@@ -192,7 +200,7 @@ class Method(enum.Enum):
 
 
 @dataclass(frozen=True)
-class Difference:
+class Difference(_Cut):
     """The mean difference ``a - b`` of two arms with its confidence interval.
 
     Attributes
@@ -228,23 +236,6 @@ class Difference:
     sd: float | None = None
     bounds: Bounds = UNBOUNDED
     confidence: float = CONFIDENCE
-
-    @property
-    def low(self) -> float:
-        """Lower end, cut to `bounds` (the mean itself without an interval)."""
-        return _clip(self.mean - (self.half_width or 0.0), self.bounds)
-
-    @property
-    def high(self) -> float:
-        """Upper end, cut to `bounds` (the mean itself without an interval)."""
-        return _clip(self.mean + (self.half_width or 0.0), self.bounds)
-
-    @property
-    def clipped(self) -> bool:
-        """A bound cut the interval."""
-        if self.half_width is None:
-            return False
-        return self.low > self.mean - self.half_width or self.high < self.mean + self.half_width
 
     def text(self) -> str:
         """``"+d ± h"`` (``"+d [low, high]"`` when cut; ``"+d"`` without an interval)."""
