@@ -220,6 +220,21 @@ def test_a_world_runs_once(scenario_file):
         world.run()
 
 
+def test_a_fleet_that_cannot_see_itself_is_warned_about_once_a_seeing_one_is_not(
+    scenario_file, caplog
+):
+    blind = replace(load_scenario(scenario_file), duration_s=1.0)  # 3 robots, sensing 0
+    with caplog.at_level("WARNING", logger="fleet.engine"):
+        World(blind)
+        World(replace(blind, sensing_radius_m=6.0))
+        World(replace(blind, robots=(replace(blind.robots[0], count=1),)))
+    warned = [r.getMessage() for r in caplog.records if "cannot see each other" in r.getMessage()]
+    assert warned == [
+        f"{scenario_file}: 3 robots with sensing_radius_m = 0 cannot see each other: nothing "
+        "keeps them apart (collisions are counted, not avoided)"
+    ]
+
+
 def test_a_scripted_run_only_needs_its_own_stations_reachable(tmp_path):
     (tmp_path / "split.toml").write_text(
         '[floor]\nname = "split"\nrect = [0, 0, 20, 10]\ndefault_v_max = 1.0\n'

@@ -14,6 +14,7 @@ it needs, starts the processes and, at the end, has the summary made (`fleet.eng
 
 from __future__ import annotations
 
+import logging
 import tempfile
 import time
 from collections.abc import Callable, Generator
@@ -54,6 +55,8 @@ from fleet.plugins import RobotSpec, SolveReport, load_charging_policy, load_dis
 from fleet.scenario import Scenario, check_fleet, check_warmup, parse_latency
 
 __all__ = ["World", "RunResult"]
+
+log = logging.getLogger("fleet.engine")
 
 
 @dataclass
@@ -96,6 +99,13 @@ class World:
         self.scenario = scenario
         self.floor = load_run_floor(scenario, floor)
         check_fleet(scenario, self.floor.spec.clearance)
+        if (n := sum(g.count for g in scenario.robots)) > 1 and scenario.sensing_radius_m == 0:
+            log.warning(
+                "%s: %d robots with sensing_radius_m = 0 cannot see each other: nothing keeps "
+                "them apart (collisions are counted, not avoided)",
+                scenario.source,
+                n,
+            )
         check_warmup(scenario)  # --duration or code may have made the run shorter than it
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
