@@ -988,6 +988,16 @@ def _kpi_table(console: Console, s: dict) -> None:
             ),
             ("commands later than their period", str(latency["late"])),
         ]
+    breakdowns = s.get("breakdowns") or {}
+    if breakdowns.get("configured"):
+        rows[-1:-1] = [
+            (
+                "availability / breakdowns / repair",
+                f"{100 * breakdowns['availability']:.1f} % / {breakdowns['breakdowns']} / "
+                f"{breakdowns['repair_s']:.0f} s",
+            ),
+            ("jobs handed back by breakdowns", str(breakdowns["jobs_handed_back"])),
+        ]
     for robot, at in (s.get("arrivals") or {}).items():
         rows.insert(-1, (f"arrival {robot}", "-" if at is None else f"{at:.1f} s"))
     for name, value in rows:

@@ -98,7 +98,7 @@ class Dispatch:
             return  # already run at this instant, before a bus round
         self._scheduled = False
         open_jobs = [rec for rec in self.jobs if rec.open]
-        idle = [r for r in self.robots.values() if r.job is None and not r.faulted]
+        idle = [r for r in self.robots.values() if r.job is None and r.in_service]
         if not open_jobs or not idle:
             return
         if not self._apply_assignments(open_jobs, self.dispatcher.assign):
@@ -114,7 +114,7 @@ class Dispatch:
             free = {
                 r.id
                 for r in self.robots.values()
-                if r.job is None and not r.faulted and r.id not in held
+                if r.job is None and r.in_service and r.id not in held
             }
             if free:
                 self._apply_assignments(
@@ -122,14 +122,14 @@ class Dispatch:
                 )
 
     def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
-        """The robots as dispatchers see them (faulted robots are left out: they take no jobs,
-        and so are those in `exclude`)."""
+        """The robots as dispatchers see them (robots out of service, faulted or broken down,
+        are left out: they take no jobs, and so are those in `exclude`)."""
         return [
             RobotStatus(
                 r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
             )
             for r in self.robots.values()
-            if not r.faulted and r.id not in exclude
+            if r.in_service and r.id not in exclude
         ]
 
     def announcements(self, t: float) -> list[Announcement]:
@@ -165,7 +165,7 @@ class Dispatch:
             # A robot that gave a job back lately does not win it again yet.
             and b.robot not in open_jobs[b.job].held_off(t)
             and b.robot in self.robots
-            and not self.robots[b.robot].faulted
+            and self.robots[b.robot].in_service
             and not self.robots[b.robot].queue
         ]
         self.recorder.stats["bids"] += len(bids)
@@ -214,7 +214,7 @@ class Dispatch:
             robot = self.robots.get(a.robot) if valid else None
             # A robot takes a job when idle, or (auctions) behind its current one if none waits.
             busy = robot is not None and (
-                robot.faulted or (robot.job is not None and (not queue or bool(robot.queue)))
+                not robot.in_service or (robot.job is not None and (not queue or bool(robot.queue)))
             )
             if rec is None or robot is None or busy or a.job in taken_jobs:
                 self.recorder.stats["assignments_rejected"] += 1

@@ -26,6 +26,7 @@ import simpy
 
 from fleet.bus import AgentHost, Exchange
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
+from fleet.engine.breakdowns import Breakdowns
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.jobs import JobRecord, JobSource
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
@@ -146,6 +147,8 @@ class World:
             self.sensing,
             self.dispatch,
         )
+
+        self.breakdowns = Breakdowns(self.env, scenario, self.robots, self.recorder, self.dispatch)
 
         self._ran = False
         #: The run's outcome once `run` has returned.
@@ -290,6 +293,7 @@ class World:
         self.env.process(self.lifecycle.release())
         for robot in self.robots.values():
             self.env.process(self._robot(robot))
+        self.breakdowns.start()
         if progress is not None or stop is not None:
             self.env.process(self._watch(progress, stop, duration))
         try:
@@ -351,6 +355,7 @@ class World:
             bus_rounds=self.rounds.count,
             bus_stats=self.exchange.stats,
         )
+        summary["breakdowns"] = self.breakdowns.summary(float(self.env.now))
         return RunResult(summary, safety, list(self.jobs))
 
     def write(self, out: Path) -> None:

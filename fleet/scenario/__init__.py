@@ -9,6 +9,7 @@ never the file.
 
 from fleet.scenario.reader import (
     REPO_ROOT,
+    BreakdownsConfig,
     BusConfig,
     JobsConfig,
     Latency,
@@ -32,6 +33,7 @@ __all__ = [
     "JobsConfig",
     "BusConfig",
     "QualityConfig",
+    "BreakdownsConfig",
     "Scenario",
     "Latency",
     "parse_latency",

@@ -233,7 +233,14 @@ for (const r of D.robots) {
   r.jobs = D.jobs.filter((j) => j.robot === r.id && j.assigned !== null);
 }
 
+const BROKEN = "#d62728";
+
 function stateAt(r, t) {
+  const down = (r.broken || []).find((b) => b[0] <= t && (b[1] === null || t < b[1]));
+  if (down) {
+    const until = down[1] === null ? "" : " (repaired at " + down[1].toFixed(0) + " s)";
+    return { key: "broken", text: "broken down" + until, ring: BROKEN };
+  }
   const job = r.jobs.find((j) => j.assigned <= t && (j.delivered === null || t < j.delivered));
   if (!job) return { key: "idle", text: "idle", ring: null };
   const to = job.station || "station";
@@ -378,6 +385,12 @@ function drawFrame(t) {
       ctx.beginPath(); ctx.arc(x, y, rad + 2.5, 0, 2 * Math.PI);
       ctx.strokeStyle = s.ring; ctx.lineWidth = 2; ctx.stroke();
     }
+    if (s.key === "broken") {  // a cross over a broken-down robot
+      const d = rad * 0.7;
+      ctx.beginPath(); ctx.moveTo(x - d, y - d); ctx.lineTo(x + d, y + d);
+      ctx.moveTo(x + d, y - d); ctx.lineTo(x - d, y + d);
+      ctx.strokeStyle = BROKEN; ctx.lineWidth = 2.5; ctx.stroke();
+    }
     const speed = Math.hypot(p.vx, p.vy);
     if (speed > 1e-3) {  // the velocity tick starts at the rim so the disk keeps its colour
       const ux = p.vx / speed, uy = -p.vy / speed, len = 5 + 12 * Math.min(1, speed / D.v_max);
@@ -411,6 +424,7 @@ if (F.stations.length) legendItem(C.station, "station");
 for (const k in D.kinds) legendItem(D.kinds[k], "printing " + k, true);
 legendItem(C.station, "to a station", true);
 legendItem("#b8860b", "waiting for print", true);
+if (D.robots.some((r) => r.broken && r.broken.length)) legendItem(BROKEN, "broken down", true);
 
 const robotList = document.getElementById("robots");
 const robotText = D.robots.map((r) => {
