@@ -214,7 +214,9 @@ def test_fixed_times_give_the_availability_they_imply():
     assert all(e["availability"] == pytest.approx(0.75) for e in s["per_robot"])
 
 
-def print_world(breakdowns: BreakdownsConfig, duration: float = 400.0) -> World:
+def print_world(
+    breakdowns: BreakdownsConfig, duration: float = 400.0, max_handbacks: int = 3
+) -> World:
     """Two robots at one depot; one job printing for 60 s on its way to the goal."""
     sc = load_scenario(HALL).override(duration=duration)
     job = ScriptedJob(0.0, "goal", tasks=(PrintTask("contour", 0.0, 60.0),))
@@ -224,7 +226,7 @@ def print_world(breakdowns: BreakdownsConfig, duration: float = 400.0) -> World:
             RobotsConfig(count=1, start=("depot_a",)),
             RobotsConfig(count=1, start=("depot_a",)),
         ),
-        jobs=JobsConfig(mode="scripted", scripted=(job,)),
+        jobs=JobsConfig(mode="scripted", scripted=(job,), max_handbacks=max_handbacks),
         print_caps={"contour": 0.3},
         breakdowns=breakdowns,
     )
@@ -310,3 +312,15 @@ def test_the_cli_shows_availability_and_the_summary_holds_it(tmp_path, capsys):
     assert {"breakdown", "repaired"} <= kinds
     assert summary["breakdowns"]["configured"] is True
     assert 0.0 < summary["breakdowns"]["availability"] < 1.0
+
+
+def test_hand_backs_by_breakdowns_do_not_make_a_job_fail():
+    # Both robots break down every 15 s in service: the 60 s print is handed back again and
+    # again, never given up (a breakdown is no fault of the job's), even with max_handbacks 0.
+    b = BreakdownsConfig(mtbf_s=15.0, mttr_s=5.0, failures="fixed", repairs="fixed")
+    world = print_world(b, duration=120.0, max_handbacks=0)
+    rec = world.jobs[0]
+    assert rec.handbacks >= 3
+    assert rec.failed_s is None and not events(world, "failed")
+    assert {e[4] for e in events(world, "handed_back")} == {"breakdown"}
+    assert world.result.summary["jobs"]["accounted"]

@@ -14,7 +14,8 @@ runs as it did before.
 
 At a failure the robot is `RobotState.broken` (out of service) until repaired: its jobs, the
 current one and any queued, are handed back with the reason ``"breakdown"`` and offered to the
-other robots at once (the part it was printing is scrapped: the next robot prints it anew);
+other robots at once (the part it was printing is scrapped: the next robot prints it anew; such
+hand-backs are no fault of the job's and do not count towards ``[jobs] max_handbacks``);
 the bus round brakes it to rest whatever its controller says; dispatch and making way leave it
 out; and the other robots see it with no plan and the highest priority, an obstacle that does
 not move. Events ``breakdown`` and ``repaired`` go to events.csv; `Breakdowns.summary` is
@@ -155,7 +156,7 @@ class Breakdowns:
             if start is not None and end is not None and start < t:
                 outages.print_scrapped_s += min(t, end) - start
             outages.jobs_handed_back += 1
-            self.dispatch.hand_back(robot, rec, REASON)
+            self.dispatch.hand_back(robot, rec, REASON, counted=False)
 
     def repair(self, robot: RobotState) -> None:
         """End `robot`'s repair now: back in service, ready for jobs."""

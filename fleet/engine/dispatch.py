@@ -236,7 +236,12 @@ class Dispatch:
         return declined
 
     def hand_back(
-        self, robot: RobotState, rec: JobRecord, reason: str, blocked: bool = False
+        self,
+        robot: RobotState,
+        rec: JobRecord,
+        reason: str,
+        blocked: bool = False,
+        counted: bool = True,
     ) -> None:
         """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
 
@@ -245,7 +250,8 @@ class Dispatch:
         `Scenario.deadlock_after_s` (or `HANDBACK_HOLD_S`): what blocked it may have cleared by
         then, and it may take any other job at once. The job is offered again when that hold
         ends. A job handed back more than `[jobs] max_handbacks` times fails, so a job nobody
-        can deliver does not loop.
+        can deliver does not loop; a hand-back that is not `counted` (a breakdown: no fault of
+        the job's) does not count towards that.
         """
         t = self.env.now
         if rec is robot.job:
@@ -262,6 +268,7 @@ class Dispatch:
         rec.turned_rad = 0.0
         rec.quality = None
         rec.handbacks += 1
+        rec.excused_handbacks += not counted
         if blocked:
             rec.handed_back_by.add(robot.id)
             hold = self.scenario.deadlock_after_s or HANDBACK_HOLD_S
@@ -270,7 +277,7 @@ class Dispatch:
             self.env.timeout(hold).callbacks.append(lambda _event: self.request())
         self.recorder.stats["jobs_handed_back"] += 1
         self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
-        if rec.handbacks > self.scenario.jobs.max_handbacks:
+        if rec.handbacks - rec.excused_handbacks > self.scenario.jobs.max_handbacks:
             rec.failed_s, rec.failure = t, reason
             self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
             log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)

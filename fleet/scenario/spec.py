@@ -200,7 +200,11 @@ class JobsTable(_Table, kw_only=True):
         list[str], Meta(description="Poisson jobs print one of these parts, drawn uniformly.")
     ] = []
     max_handbacks: Annotated[
-        NonNegativeInt, Meta(description="A job handed back more often than this is given up.")
+        NonNegativeInt,
+        Meta(
+            description="A job handed back more often than this is given up (hand-backs by "
+            "breakdowns not counted)."
+        ),
     ] = 3
 
 
