@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.image import imread
 
 from fleet.cli import main
 from fleet.engine import World
@@ -30,6 +31,20 @@ from fleet.scenario import (
     RobotsConfig,
     ScriptedJob,
     load_scenario,
+)
+from fleet.view.figures import load_tracks
+from fleet.view.replay import write_replay
+from tests.test_replay import (
+    CHROMIUM,
+    WINDOWS,
+    finish,
+    page_data,
+    page_view,
+    position,
+    probe,
+    probed,
+    rgb,
+    screenshot,
 )
 
 HALL = Path(__file__).resolve().parent / "cases" / "same_station" / "scen.toml"
@@ -324,3 +339,36 @@ def test_hand_backs_by_breakdowns_do_not_make_a_job_fail():
     assert rec.failed_s is None and not events(world, "failed")
     assert {e[4] for e in events(world, "handed_back")} == {"breakdown"}
     assert world.result.summary["jobs"]["accounted"]
+
+
+def test_the_replay_marks_a_broken_down_robot(tmp_path):
+
+    b = BreakdownsConfig(
+        mtbf_s=20.0,
+        mttr_s=100.0,
+        failures="fixed",
+        repairs="fixed",
+        groups=((None, None), (0.0, None)),
+    )
+    world = print_world(b, duration=160.0)
+    run = tmp_path / "run"
+    world.write(run)
+    page = write_replay(run)
+    robots = {r["id"]: r for r in page_data(page)["robots"]}
+    assert robots["r01"]["broken"] == [[20.0, 120.0], [140.0, None]]
+    assert robots["r02"]["broken"] == []
+    if CHROMIUM is None:
+        pytest.skip("chromium is not installed (Debian: apt-get install chromium)")
+    procs = [
+        screenshot(probed(page, f"at{t}.html"), t, tmp_path / f"shot{t}", WINDOWS[0])
+        for t in (60.0, 130.0)
+    ]
+    (dom, shot), (dom_after, _) = (
+        finish(p, tmp_path / f"shot{t}") for p, t in zip(procs, (60.0, 130.0), strict=True)
+    )
+    assert "broken down (repaired at 120 s)" in dom
+    assert "broken down" not in dom_after.split('id="robots"')[1].split("</ul>")[0]
+    view, (left, top) = page_view(probe(dom))
+    x, y = np.array(view.pixel(*position(load_tracks(run / "trajectories.csv")["r01"], 60.0)))
+    centre = imread(shot)[int(y + top), int(x + left), :3]
+    assert np.abs(centre - rgb("#d62728")).max() < 0.1, centre  # the red cross over its disk

@@ -17,10 +17,13 @@ Output contract (extend it, never break it):
   somewhere to go, and how many were errors)}], stuck_robots [{robot, reason}] (robots whose
   every such command was an error: they could never move; `fleet run` exits 1), digest (sha256
   of the trajectories: the same seed gives the same digest); for scripted (point-to-point)
-  runs also arrivals {robot: when it reached the destination of its last trip, s, or null}.
+  runs also arrivals {robot: when it reached the destination of its last trip, s, or null};
+  breakdowns {configured, mtbf_s, mttr_s, availability, breakdowns, repaired, repair_s,
+  mean_repair_s, jobs_handed_back, print_scrapped_s, per_robot [{id, availability, breakdowns,
+  repair_s, jobs_handed_back}]} (`fleet.engine.breakdowns`; availability 1 without breakdowns).
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
-  arrived, delivered).
+  arrived, delivered; breakdown and repaired with the robot, and the job it had).
 - ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
   predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
   printed); started/finished are the print's start and end (for a job with nothing to print,
