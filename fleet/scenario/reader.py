@@ -18,8 +18,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-import msgspec
-
 from fleet.errors import ScenarioError
 from fleet.printing import PrintSchedule, PrintTask
 from fleet.scenario.spec import (
@@ -458,7 +456,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         quality=quality,
         rough_v_max=file.floor.rough_v_max,
         latency=None if sc.latency == "none" else sc.latency,
-        breakdowns=_breakdowns(src, file.breakdowns, len(groups)),
+        breakdowns=_breakdowns(src, file.breakdowns, len(groups), raw.get("breakdowns")),
     )
 
 
@@ -612,15 +610,17 @@ def _scripted_job(src: str, i: int, job: ScriptedJobTable) -> ScriptedJob:
     )
 
 
-def _breakdowns(src: str, table: BreakdownsTable | None, groups: int) -> BreakdownsConfig | None:
-    """``[breakdowns]``, whose `groups` (when given) has one entry per robot group."""
+def _breakdowns(
+    src: str, table: BreakdownsTable | None, groups: int, raw: Any
+) -> BreakdownsConfig | None:
+    """``[breakdowns]`` (`raw` as written), whose `groups` has one entry per robot group."""
     if table is None:
         return None
     if table.groups and len(table.groups) != groups:
         raise ScenarioError(
             src,
             "breakdowns.groups",
-            [msgspec.to_builtins(g) for g in table.groups],
+            raw["groups"],
             f"needs one entry per robot group ({groups}), in the order of the [[robots]] groups",
         )
     return BreakdownsConfig(
