@@ -274,7 +274,17 @@ def _parser() -> argparse.ArgumentParser:
     )
     report.add_argument("study_dir", type=Path, help="a directory written by `fleet sweep`")
     report.add_argument("--out", type=Path, help="where to write (default: the study directory)")
-    _json_argument(report, "the files written and the table of good parts per hour")
+    report.add_argument(
+        "--half-width",
+        default="5%",
+        metavar="H",
+        help="the 95 %% interval half-width to aim for: a share of the mean (5%%, the default) "
+        "or good parts/h (0.5); the report says which intervals are wider and how many seeds "
+        "they need",
+    )
+    _json_argument(
+        report, "the files written, good parts per hour, the differences and the seeds needed"
+    )
 
     plot = command(
         "plot",
@@ -387,8 +397,8 @@ def _output_arguments(p: argparse.ArgumentParser) -> None:
         "--no-figures",
         dest="figures",
         action="store_false",
-        help="skip trajectory.png, speed.png and gantt.png (they take about two seconds for an "
-        "hour of a few robots; `fleet plot RUN_DIR` draws them later)",
+        help="skip trajectory.png, speed.png, gantt.png, states.png and wip.png (they take about "
+        "two seconds for an hour of a few robots; `fleet plot RUN_DIR` draws them later)",
     )
 
 
@@ -541,47 +551,6 @@ def _cmd_keys(args: argparse.Namespace, console: Console, errors: Console) -> in
 
 
 # -- running a scenario -----------------------------------------------------------------------
-def _fresh_run_dir(out: Path, force: bool) -> None:
-    """Make sure `out` holds nothing from an earlier run: refuse it, or with `force` clear the
-    run files in it (and nothing else: a folder with other files is never emptied)."""
-    from fleet.engine.recorder import RUN_FILES
-    from fleet.view.figures import GANTT_PNG, SPEED_PNG, TRAJECTORY_PNG
-    from fleet.view.replay import REPLAY_HTML
-
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise InputError(
-            "command line", "--out", str(out), "is a file; a run directory must be a folder"
-        )
-    found = sorted(out.iterdir())
-    if not found:
-        return
-    names = ", ".join(p.name + ("/" if p.is_dir() else "") for p in found[:6])
-    more = f" and {len(found) - 6} more" if len(found) > 6 else ""
-    if not force:
-        raise InputError(
-            "command line",
-            "--out",
-            str(out),
-            f"already holds files ({names}{more}); a run directory is written fresh, so that "
-            "no figure or table of an earlier run survives: give another --out, or --force to "
-            "clear the earlier run's files first",
-        )
-    ours = {*RUN_FILES, TRAJECTORY_PNG, SPEED_PNG, GANTT_PNG, REPLAY_HTML}
-    foreign = [p.name for p in found if p.name not in ours or not p.is_file()]
-    if foreign:
-        raise InputError(
-            "command line",
-            "--out",
-            str(out),
-            f"holds files no run writes ({', '.join(foreign[:6])}); --force clears only a "
-            "run's own files, so choose another --out",
-        )
-    for path in found:
-        path.unlink()
-
-
 @contextmanager
 def _stop_on_interrupt(errors: Console) -> Iterator[Callable[[], bool]]:
     """A first Ctrl-C asks the run to stop at its next step (`World.run`'s `stop`); a second
@@ -614,8 +583,10 @@ def _simulate(
     """Build the World, run it with a progress bar, write the run directory, show key figures."""
     # The default folder is the run's own, by name and seed: running again replaces that run.
     # A folder the user names is refused when it holds a run, unless --force.
+    from fleet.api.runs import fresh_run_dir, run_problems, simulate
+
     out = args.out or Path("runs") / f"{scenario.name}-seed{scenario.seed}"
-    _fresh_run_dir(out, args.force or args.out is None)
+    fresh_run_dir(out, args.force or args.out is None)
     talk = errors if args.json else console  # --json keeps stdout for the JSON
     world = make_world()
     if not args.quiet:
@@ -634,14 +605,8 @@ def _simulate(
             rtf = f"{now / wall:,.1f}x real time" if wall > 0 and now > 0 else ""
             progress.update(task, completed=now, rtf=rtf)
 
-        result = world.run(advance, stop=stop)
-    summary = result.summary
-    world.write(out)
+        summary = simulate(world, out, progress=advance, stop=stop, figures=args.figures)
     complete = summary["complete"]
-    if args.figures and complete:
-        from fleet.view.figures import save_run_figures
-
-        save_run_figures(out, world.floor)
     if args.json:
         _print_json({"run_dir": str(out), "complete": complete, "summary": summary})
     elif not args.quiet:
@@ -655,21 +620,10 @@ def _simulate(
             f"`fleet plot {out}` draws them)",
         )
         return EXIT_INTERRUPTED
-    jobs = summary["jobs"]
-    if not jobs["accounted"]:
-        _error(
-            errors,
-            f"job accounting broken: {jobs['released']} released, {jobs['completed']} completed, "
-            f"{jobs['failed']} failed, {jobs['in_progress']} in progress "
-            f"(see {out / 'events.csv'})",
-        )
-        return EXIT_FAILED
-    if summary["stuck_robots"]:
-        # A robot that could never move makes the run's figures meaningless: not a quiet exit 0.
-        for stuck in summary["stuck_robots"]:
-            _error(errors, f"robot {stuck['robot']} could never move: {stuck['reason']}")
-        return EXIT_FAILED
-    return EXIT_OK
+    problems = run_problems(summary, out)
+    for problem in problems:
+        _error(errors, problem)
+    return EXIT_FAILED if problems else EXIT_OK
 
 
 def _run_progress(errors: Console, quiet: bool) -> Progress:
@@ -798,15 +752,19 @@ def _cmd_sweep(args: argparse.Namespace, console: Console, errors: Console) -> i
 
 
 def _cmd_report(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from fleet.study.report import write_report
+    from fleet.study.report import HalfWidth, method_summary, write_report
 
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise InputError(
             "command line", "--out", str(args.out), "is a file; the report needs a directory"
         )
-    result = write_report(args.study_dir, args.out)
+    try:
+        target = HalfWidth.parse(args.half_width)
+    except ValueError as exc:
+        raise InputError("command line", "--half-width", args.half_width, str(exc)) from None
+    result = write_report(args.study_dir, args.out, half_width=target)
+    summary = result.summary
     if args.json:
-        summary = result.summary
         _print_json(
             {
                 "study": summary.study.name,
@@ -829,12 +787,78 @@ def _cmd_report(args: argparse.Namespace, console: Console, errors: Console) -> 
                     }
                     for (panel, series, x), iv in summary.throughput.items()
                 ],
+                "method": method_summary(summary),
+                # Leader minus each other series per setting, 95 % interval, method named.
+                "differences": [
+                    {
+                        "panel": r.panel,
+                        "x": r.x,
+                        "leader": r.leader,
+                        "series": series,
+                        "mean": d.mean,
+                        "low": d.low if d.half_width is not None else None,
+                        "high": d.high if d.half_width is not None else None,
+                        "method": d.method.value,
+                        "df": d.df,
+                        "seeds": list(d.seeds),
+                        "text": d.method_text(),
+                    }
+                    for r in summary.rankings
+                    for series, d in r.differences.items()
+                ],
+                "half_width_target": summary.target.text(),
+                "seeds_needed": [
+                    {
+                        "panel": a.panel,
+                        "x": a.x,
+                        "interval": a.series,
+                        "n": a.n,
+                        "half_width": a.half_width,
+                        "target": a.target,
+                        "needed": a.needed,
+                    }
+                    for a in summary.advice
+                    if not a.enough
+                ],
             }
         )
         return EXIT_OK
+    _print_comparisons(console, summary)
     for path in result.paths:
         console.print(f"wrote {escape(str(path))}", soft_wrap=True)
     return EXIT_OK
+
+
+def _print_comparisons(console: Console, summary: Any, most: int = 12) -> None:
+    """The leader's difference to each other series per setting, with the method named, and
+    whether the intervals meet the target half-width."""
+    lines = []
+    for r in summary.rankings:
+        where = ", ".join(
+            f"{axis}={label}"
+            for axis, label in ((summary.study.panel_axis, r.panel), (summary.study.x_axis, r.x))
+            if label is not None
+        )
+        prefix = f"{where}: " if where else ""
+        for series, d in r.differences.items():
+            sep = "" if d.half_width is None else ", separated" if d.low > 0 else ", not separated"
+            lines.append(
+                f"{prefix}{r.leader} − {series} = {d.text()} good parts/h ({d.method_text()}){sep}"
+            )
+    for line in lines[:most]:
+        console.print(escape(line), soft_wrap=True, highlight=False)
+    if len(lines) > most:
+        console.print(f"… {len(lines) - most} more differences in report.md (Comparisons)")
+    short = [a for a in summary.advice if not a.enough]
+    known = [a.needed for a in short if a.needed is not None]
+    if short:
+        more = f"; up to {max(known)} seeds needed" if known else ""
+        console.print(
+            f"{len(short)} of {len(summary.advice)} intervals are wider than "
+            f"{escape(summary.target.text())}{more} (report.md, Replications)",
+            soft_wrap=True,
+            highlight=False,
+        )
 
 
 def _cmd_plot(args: argparse.Namespace, console: Console, errors: Console) -> int:
@@ -943,6 +967,38 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _disruption_rows(s: dict) -> list[tuple[str, str]]:
+    """The key figures of what went wrong: hand-backs (by reason) and the print time they
+    scrapped, deadlocks and faults (a summary without them, from an older run: none shown)."""
+    rows = []
+    handbacks = s.get("handbacks")
+    if isinstance(handbacks, dict):
+        rows.append(
+            (
+                "hand-backs / scrapped print",
+                f"{handbacks['count']} / {handbacks['scrapped_print_s']:.1f} s",
+            )
+        )
+        rows += [(f"  hand-backs: {why}", str(n)) for why, n in handbacks["by_reason"].items()]
+    if "deadlocks" in s:
+        rows.append(("deadlocks", str(s["deadlocks"])))
+    faults = s.get("faults")
+    if isinstance(faults, dict):
+        rows.append(
+            (
+                "faults: agents lost / left",
+                f"{faults.get('agents_lost', 0)} / {faults.get('agents_left', 0)}",
+            )
+        )
+        rows.append(
+            (
+                "faults: robots orphaned / rejoined",
+                f"{faults.get('robots_orphaned', 0)} / {faults.get('robots_rejoined', 0)}",
+            )
+        )
+    return rows
+
+
 def _kpi_table(console: Console, s: dict) -> None:
     t = Table(title="Key figures", show_header=True, header_style="bold")
     t.add_column("figure")
@@ -967,6 +1023,7 @@ def _kpi_table(console: Console, s: dict) -> None:
         ("violations: print speed", str(v["print_speed"])),
         ("violations: collision", str(v["collision"])),
         ("jobs failed / in progress", f"{jobs['failed']} / {jobs['in_progress']}"),
+        *_disruption_rows(s),
         ("digest", s["digest"][:16]),
     ]
     solver = s["solver"]
@@ -998,11 +1055,67 @@ def _kpi_table(console: Console, s: dict) -> None:
             ),
             ("jobs handed back by breakdowns", str(breakdowns["jobs_handed_back"])),
         ]
+    battery = s.get("battery")
+    if battery:  # [battery]: the fleet's time at the chargers, and robots that ran flat
+        rows[-1:-1] = [
+            (
+                "charging time (fleet) / charges",
+                f"{battery['charging_s'] / 3600:.2f} h ({battery['charging_share']:.0%}) / "
+                f"{battery['charges']}",
+            ),
+            (
+                "lowest charge / robots stranded",
+                f"{battery['min_charge_share']:.0%} / {battery['stranded']}",
+            ),
+        ]
     for robot, at in (s.get("arrivals") or {}).items():
         rows.insert(-1, (f"arrival {robot}", "-" if at is None else f"{at:.1f} s"))
+    rows[-1:-1] = _time_rows(s)
     for name, value in rows:
         t.add_row(name, value)
     console.print(t)
+
+
+def _time_rows(s: dict) -> list[tuple[str, str]]:
+    """The KPI table's rows of KPIs over time: waits, lead times, queue and WIP, the fleet's
+    share of time in each state, the warm-up left out and the one MSER-5 suggests."""
+    rows = []
+
+    for key, what, stats in (
+        ("assign_wait_s", "wait for assignment", ("mean", "p50", "p95")),
+        ("lead_time_s", "lead time", ("p50", "p95")),
+    ):
+        d = s.get(key) or {}
+        if d.get("n"):
+            values = " / ".join(f"{d[k]:.1f}" for k in stats)
+            rows.append((f"{what} {' / '.join(stats)}", f"{values} s"))
+    if s.get("wip_mean") is not None:
+        rows.append(("queue / WIP mean", f"{s['queue_mean']:.2f} / {s['wip_mean']:.2f} jobs"))
+    shares = (s.get("states") or {}).get("shares")
+    if shares:
+        pct = {k: f"{100 * v:.0f}" for k, v in shares.items()}
+        rows.append(
+            (
+                "robots' time idle / driving empty / blocked",
+                f"{pct['idle']} / {pct['driving_empty']} / {pct['blocked']} %",
+            )
+        )
+        rows.append(
+            (
+                "robots' time printing driving / at rest",
+                f"{pct['printing_driving']} / {pct['printing_at_rest']} %",
+            )
+        )
+        if shares["faulted"] or shares["charging"]:
+            rows.append(
+                ("robots' time faulted / charging", f"{pct['faulted']} / {pct['charging']} %")
+            )
+    if s.get("warmup_s"):
+        rows.append(("warm-up left out of the KPIs", f"{s['warmup_s']:g} s"))
+    if s.get("suggested_warmup_s") is not None:
+        limit = " (limit: run longer)" if s.get("suggested_warmup_at_limit") else ""
+        rows.append(("warm-up suggested (MSER-5, WIP)", f"{s['suggested_warmup_s']:.0f} s{limit}"))
+    return rows
 
 
 def _cmd_plugins(args: argparse.Namespace, console: Console, errors: Console) -> int:

@@ -553,8 +553,8 @@ class RunRecord:
     return_home: dict[str, bool] = field(default_factory=dict)
     #: (t, event, job, robot, station) as the recorder keeps them.
     events: list[tuple[float, str, str, str, str]] = field(default_factory=list)
-    #: (robot, job, kind, start_s, end_s, cap): caps.csv's rows.
-    caps: list[tuple[str, str, str, float, float, float]] = field(default_factory=list)
+    #: (robot, job, kind, start_s, end_s, cap, attempt): caps.csv's rows.
+    caps: list[tuple] = field(default_factory=list)
 
 
 class Oracle:
@@ -687,7 +687,7 @@ class Oracle:
                     f"{len(over)} step(s)",
                 )
             )
-        for rob, job, kind, s0, s1, cap in run.caps:
+        for rob, job, kind, s0, s1, cap, *_ in run.caps:
             if rob != robot:
                 continue
             eps = 1e-9 * max(1.0, s1)

@@ -49,6 +49,9 @@ MAY_IMPORT: dict[str, set[str]] = {
         "fleet.errors", "fleet.floor", "fleet.highs", "fleet.printing", "fleet.scenario",
         "fleet.plugins", "fleet.engine", "fleet.view",
     },
+    "fleet.api": {
+        "fleet.errors", "fleet.scenario", "fleet.engine", "fleet.study", "fleet.view",
+    },
 }  # fmt: skip
 
 #: Rooms that may import any room: the command line and `python -m fleet`.

@@ -371,4 +371,4 @@ def test_the_replay_marks_a_broken_down_robot(tmp_path):
     view, (left, top) = page_view(probe(dom))
     x, y = np.array(view.pixel(*position(load_tracks(run / "trajectories.csv")["r01"], 60.0)))
     centre = imread(shot)[int(y + top), int(x + left), :3]
-    assert np.abs(centre - rgb("#d62728")).max() < 0.1, centre  # the red cross over its disk
+    assert np.abs(centre - rgb("#7b3294")).max() < 0.1, centre  # the purple cross over its disk

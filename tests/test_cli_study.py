@@ -281,6 +281,69 @@ def test_report_writes_the_markdown_and_figures_and_lists_them(swept, tmp_path, 
     assert (out / "report.md").read_text() == report
 
 
+#: Two strategies, one robot, five seeds of plain deliveries (no prints), ten cells of five
+#: simulated minutes: each seed's arrivals give both strategies the same jobs (common random
+#: numbers) and the faster one delivers more of them.
+PAIR_GRID = """robots = [1]
+rate_per_h = [60]
+"jobs.parts" = [[]]
+controller = [
+    "qsp_speed",
+    { label = "fixed 0.2 m/s", name = "fixed_speed", options = { speed = 0.2 } },
+]
+"""
+
+
+@pytest.fixture(scope="module")
+def paired(tmp_path_factory):
+    """A 2-arm, 5-seed study of real runs, swept in-process on two workers."""
+    folder = tmp_path_factory.mktemp("paired")
+    study = write_study(folder, PAIR_GRID, name="pair", seeds="5", duration=300)
+    out = folder / "out"
+    assert main(["sweep", str(study), "--out", str(out), "-j", "2", "--quiet"]) == 0
+    return out
+
+
+def test_report_of_a_two_arm_five_seed_study_prints_paired_intervals(paired, capsys):
+    from scipy import stats as scipy_stats
+
+    rows = read_rows(paired / "results.csv")
+    good = {(r["controller"], int(r["seed"])): float(r["throughput_good_per_h"]) for r in rows}
+    arms = {c: [good[(c, s)] for s in range(1, 6)] for c in ("qsp_speed", "fixed 0.2 m/s")}
+    (lead, va), (other, vb) = sorted(arms.items(), key=lambda kv: -sum(kv[1]))
+    assert va != vb  # the strategies differ on these runs
+    ci = scipy_stats.ttest_rel(va, vb).confidence_interval(0.95)
+    interval = f"{(ci.low + ci.high) / 2:+.2f} ± {(ci.high - ci.low) / 2:.2f}"
+    method = "95 % CI, paired t on 5 common seeds, df 4"
+
+    assert main(["report", str(paired)]) == 0
+    text = unwrap(capsys.readouterr().out)
+    separated = "separated" if ci.low > 0 else "not separated"
+    line = f"robots=1, rate_per_h=60: {lead} − {other} = {interval} good parts/h ({method}), "
+    assert line + separated in text
+    assert "wider than 5 % of the mean" in text
+    report = (paired / "report.md").read_text()
+    assert f"| 60 | {lead} − {other} | {interval} |" in report and method in report
+    # The engine gives common random numbers: each seed releases the same jobs in both arms.
+    assert "the released jobs (id, part, release time) are the same in all 5 pairs" in report
+
+    assert main(["report", str(paired), "--json", "--half-width", "100%"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["method"] == f"{method} (1 difference)"
+    (diff,) = data["differences"]
+    assert (diff["leader"], diff["series"], diff["method"], diff["df"]) == (
+        lead, other, "paired t", 4
+    )  # fmt: skip
+    assert (diff["low"], diff["high"]) == pytest.approx((ci.low, ci.high), rel=1e-9)
+    assert data["half_width_target"] == "100 % of the mean"
+
+
+def test_report_refuses_a_bad_half_width_naming_it(paired, capsys):
+    assert main(["report", str(paired), "--half-width", "tight"]) == 1
+    err = capsys.readouterr().err
+    assert "--half-width" in err and "'tight'" in err and "share of the mean (5%)" in err
+
+
 @pytest.mark.parametrize("kind", ["empty", "missing"])
 def test_report_on_a_directory_without_a_study_exits_1_naming_it(tmp_path, capsys, kind):
     folder = tmp_path / kind
@@ -296,7 +359,8 @@ def test_report_on_a_directory_without_a_study_exits_1_naming_it(tmp_path, capsy
 
 # -- fleet plot and fleet replay ------------------------------------------------------------------
 def test_plot_draws_trajectory_speed_and_gantt_of_a_run(run_dir, capsys):
-    pictures = [run_dir / n for n in ("trajectory.png", "speed.png", "gantt.png")]
+    names = ("trajectory.png", "speed.png", "gantt.png", "states.png", "wip.png")
+    pictures = [run_dir / n for n in names]
     assert not any(p.exists() for p in pictures)  # --no-figures left them to `fleet plot`
     assert main(["plot", str(run_dir)]) == 0
     assert written(capsys.readouterr().out) == pictures
@@ -312,6 +376,8 @@ def test_a_sweep_cell_is_a_run_directory_plot_and_replay_read(swept, capsys):
         "trajectory.png",
         "speed.png",
         "gantt.png",
+        "states.png",
+        "wip.png",
     ]
     assert main(["replay", str(cell)]) == 0
     assert (cell / "replay.html").is_file()

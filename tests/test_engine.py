@@ -345,8 +345,8 @@ def test_the_follower_honours_print_caps_ahead_and_caps_are_written(tmp_path):
     world.recorder.write(tmp_path / "run", result.summary, world.floor, [], world.cap_rows())
     rows = (tmp_path / "run" / "caps.csv").read_text().splitlines()
     assert rows == [
-        "robot,job,kind,start_s,end_s,cap",
-        "r01,j00001,infill,8.000000,20.000000,0.2",
+        "robot,job,kind,start_s,end_s,cap,attempt",
+        "r01,j00001,infill,8.000000,20.000000,0.2,1",
     ]
 
 

@@ -45,7 +45,11 @@ def test_a_new_plugin_installs_is_found_and_passes_the_kit(kind, tmp_path, capsy
 
     project = tomllib.loads((root / "pyproject.toml").read_text())
     assert project["build-system"]["build-backend"] == "setuptools.build_meta"
-    target = {"controller": "control:MyController", "dispatcher": "dispatch:MyDispatcher"}[kind]
+    target = {
+        "controller": "control:MyController",
+        "dispatcher": "dispatch:MyDispatcher",
+        "charging": "policy:MyCharging",
+    }[kind]
     assert project["project"]["entry-points"][KINDS[kind]] == {name: f"{name}.{target}"}
     assert (root / "src" / name / "__init__.py").is_file()
 

@@ -143,7 +143,7 @@ def test_the_page_fetches_nothing_and_embeds_its_data_as_json(run_dir):
     assert "travel" in {k[2] for r in data["robots"] for k in r["tasks"]}
     plans = load_plans(run_dir / "plans.csv")
     assert [len(r["plans"]["sent"]) for r in data["robots"]] == [len(plans[r]) for r in plans]
-    assert len(data["floor"]["zones"]) == 3 and len(data["floor"]["stations"]) == 9
+    assert len(data["floor"]["zones"]) == 3 and len(data["floor"]["stations"]) == 11  # 2 chargers
 
 
 def test_embedded_samples_interpolate_to_every_recorded_sample(run_dir):

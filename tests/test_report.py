@@ -18,19 +18,19 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pytest
 from matplotlib.container import BarContainer
+from scipy import stats as scipy_stats
 
 from fleet.engine import World
 from fleet.errors import InputError, PluginError
 from fleet.scenario import PluginChoice, default_scenario
 from fleet.study.report import (
-    Interval,
+    HalfWidth,
     Verdict,
+    compare,
     load_study,
     mean_ci,
-    rank,
     summarise,
     t_quantile,
     throughput_figure,
@@ -174,54 +174,26 @@ def table_rows(markdown: str, section: str) -> list[list[str]]:
     return [[c.strip() for c in re.split(r"(?<!\\)\|", ln)[1:-1]] for ln in rows]
 
 
-# -- statistics -------------------------------------------------------------------------------
-def test_t_quantiles_are_the_tabulated_values():
-    for df, q in T975.items():
-        assert t_quantile(df) == pytest.approx(q, abs=5e-4)
-    assert t_quantile(31) == t_quantile(1000) == 1.96
-    with pytest.raises(ValueError, match="positive integer"):
-        t_quantile(0)
-
-
-def student_t_cdf(x: float, df: int) -> float:
-    """P(T <= x) for x >= 0 by Simpson integration of the density (independent of the table)."""
-    grid = np.linspace(0.0, x, 20001)
-    c = math.exp(math.lgamma((df + 1) / 2) - math.lgamma(df / 2)) / math.sqrt(df * math.pi)
-    pdf = c * (1 + grid**2 / df) ** (-(df + 1) / 2)
-    h = grid[1] - grid[0]
-    simpson = h / 3 * (pdf[0] + pdf[-1] + 4 * pdf[1:-1:2].sum() + 2 * pdf[2:-1:2].sum())
-    return 0.5 + simpson
-
-
-@pytest.mark.parametrize("df", range(1, 31))
-def test_every_tabulated_quantile_leaves_two_and_a_half_percent_in_the_tail(df):
-    assert student_t_cdf(t_quantile(df), df) == pytest.approx(0.975, abs=2e-5)
-
-
+# -- statistics (tests/test_stats.py checks them against scipy) ---------------------------------
 def test_mean_ci_is_the_student_t_interval_and_none_for_one_value():
     c = mean_ci([1.0, 2.0, 3.0])
     assert c.mean == 2.0 and c.n == 3
     assert c.half_width == pytest.approx(4.303 / math.sqrt(3), abs=1e-3)
+    assert t_quantile(2) == pytest.approx(T975[2], abs=5e-4)
     one = mean_ci([5.0])
     assert one.half_width is None and one.low == one.high == 5.0
     with pytest.raises(ValueError):
         mean_ci([])
 
 
-def test_rank_says_clear_only_when_the_intervals_do_not_overlap():
-    a, b = Interval(10.0, 1.0, 3), Interval(7.0, 1.5, 3)
-    assert rank({"b": b, "a": a}) == ("a", "b", Verdict.CLEAR)
-    assert rank({"a": a, "b": Interval(8.5, 0.6, 3)}) == ("a", "b", Verdict.TIE)
-    assert rank({"a": a, "b": Interval(7.0, None, 1)})[2] is Verdict.NO_INTERVAL
-    assert rank({"a": a, "b": Interval(10.0, 0.0, 2)})[2] is Verdict.EQUAL
-    assert rank({"a": a}) == ("a", None, Verdict.ALONE)
-
-
-def test_rank_is_not_clear_while_a_lower_series_interval_reaches_the_leader():
-    # c has the lowest mean but a wide interval: the leader is not clearly ahead of it.
-    a, b, c = Interval(10.0, 1.24, 3), Interval(8.0, 0.25, 3), Interval(7.0, 12.42, 3)
-    assert rank({"a": a, "b": b}) == ("a", "b", Verdict.CLEAR)
-    assert rank({"a": a, "b": b, "c": c}) == ("a", "b", Verdict.TIE)
+def test_compare_says_clear_only_when_every_paired_difference_is_above_zero():
+    a = {1: 10.0, 2: 11.0, 3: 9.0}
+    assert compare({"b": {1: 7.0, 2: 8.1, 3: 5.8}, "a": a}).verdict is Verdict.CLEAR
+    # c has the lowest mean but differences to the leader that reach 0: not clearly ahead.
+    c = {1: 2.0, 2: 14.0, 3: 3.0}
+    got = compare({"a": a, "b": {1: 7.0, 2: 8.1, 3: 5.8}, "c": c})
+    assert (got.leader, got.runner_up, got.verdict) == ("a", "b", Verdict.TIE)
+    assert got.differences["b"].low > 0 and got.differences["c"].low <= 0
 
 
 # -- the report of real runs ------------------------------------------------------------------
@@ -237,15 +209,25 @@ def test_writes_three_pngs_and_the_report_into_out_dir(report):
         assert f"]({name})" in report.markdown  # linked relative to report.md
 
 
-def good_parts_by_setting(study: Path) -> dict[tuple[str, str], list[float]]:
-    """(rate, series) -> good parts/h of the ok runs, read straight from results.csv."""
-    groups = defaultdict(list)
+def good_parts_by_setting(study: Path) -> dict[tuple[str, str], dict[int, float]]:
+    """(rate, series) -> seed -> good parts/h of the ok runs, read straight from results.csv."""
+    groups = defaultdict(dict)
     with open(study / "results.csv", newline="") as fh:
         for r in csv.DictReader(fh):
             if r["status"] == "ok":
                 key = (r["rate_per_h"], f"{r['controller']}, jobs.parts={r['jobs.parts']}")
-                groups[key].append(float(r["throughput_good_per_h"]))
+                groups[key][int(r["seed"])] = float(r["throughput_good_per_h"])
     return groups
+
+
+def parse_interval(text: str) -> tuple[float, float, float, int]:
+    """(mean, low, high, n) of a table cell, ``m ± h (n=k)`` or, cut at 0, ``m [lo, hi] (n=k)``."""
+    m = re.fullmatch(r"(-?[\d.]+) ± ([\d.]+) \(n=(\d+)\)", text)
+    if m:
+        return float(m[1]), float(m[1]) - float(m[2]), float(m[1]) + float(m[2]), int(m[3])
+    m = re.fullmatch(r"(-?[\d.]+) \[(-?[\d.]+), (-?[\d.]+)\] \(n=(\d+)\)", text)
+    assert m, text
+    return float(m[1]), float(m[2]), float(m[3]), int(m[4])
 
 
 def test_good_parts_table_equals_means_and_intervals_recomputed_from_results_csv(study, report):
@@ -256,35 +238,43 @@ def test_good_parts_table_equals_means_and_intervals_recomputed_from_results_csv
     assert [r[0] for r in body] == ["6", "12"]
     for r in body:
         for col, series in enumerate(SERIES, 1):
-            values = groups[(r[0], series)]
-            m = re.fullmatch(r"(-?[\d.]+) ± ([\d.]+) \(n=(\d+)\)", r[col])
-            assert m, r[col]
-            assert float(m[1]) == pytest.approx(statistics.mean(values), abs=0.006)
+            values = list(groups[(r[0], series)].values())
+            mean, low, high, n = parse_interval(r[col])
+            assert mean == pytest.approx(statistics.mean(values), abs=0.006)
             hw = T975[len(values) - 1] * statistics.stdev(values) / math.sqrt(len(values))
-            assert float(m[2]) == pytest.approx(hw, abs=0.006)
-            assert int(m[3]) == len(values) == 2
+            # Cut at 0: good parts per hour cannot be negative.
+            assert low == pytest.approx(max(0.0, mean - hw), abs=0.006)
+            assert high == pytest.approx(mean + hw, abs=0.006)
+            assert n == len(values) == 2
 
 
-def test_the_leader_column_agrees_with_intervals_recomputed_from_results_csv(study, report):
+def test_the_leader_column_agrees_with_paired_differences_recomputed_from_results_csv(
+    study, report
+):
     groups = good_parts_by_setting(study)
     checked = 0
     for row in table_rows(report.markdown, "Good parts per hour")[1:]:
-        stats = {}
-        for series in SERIES:
-            v = groups[(row[0], series)]
-            hw = T975[len(v) - 1] * statistics.stdev(v) / math.sqrt(len(v))
-            stats[series] = (statistics.mean(v), hw)
-        (a, (ma, ha)), (b, (mb, hb)) = sorted(stats.items(), key=lambda kv: -kv[1][0])
-        if math.isclose(ma, mb):
+        arms = {series: groups[(row[0], series)] for series in SERIES}
+        (a, va), (b, vb) = sorted(arms.items(), key=lambda kv: -statistics.mean(kv[1].values()))
+        assert sorted(va) == sorted(vb) == [1, 2]  # the same seeds: paired
+        d = [va[seed] - vb[seed] for seed in (1, 2)]
+        low = statistics.mean(d) - T975[1] * statistics.stdev(d) / math.sqrt(2)
+        if math.isclose(statistics.mean(va.values()), statistics.mean(vb.values())):
             assert row[-1] == f"none: {SERIES[0]} and {SERIES[1]} have equal means"
-        elif ma - ha > mb + hb + 0.01:
+        elif low > 0.01:
             assert row[-1] == f"**{a}**, clearly ahead of {b}"
-        elif ma - ha < mb + hb - 0.01:
-            assert row[-1] == f"{a}; tie with {b} (intervals overlap)"
+        elif low < -0.01:
+            assert row[-1] == f"{a}; tie with {b} (difference's interval reaches 0)"
         else:
-            continue  # within rounding of touching intervals: either verdict is defensible
+            continue  # within rounding of zero: either verdict is defensible
         checked += 1
     assert checked >= 1
+    comparisons = table_rows(report.markdown, "Comparisons")
+    assert comparisons[0] == [
+        "rate_per_h", "leader − series", "difference (good parts/h)", "separated", "method"
+    ]  # fmt: skip
+    for r in comparisons[1:]:
+        assert r[4] == "95 % CI, paired t on 2 common seeds, df 1"
 
 
 def test_failed_runs_are_listed_with_their_errors_and_left_out(report):
@@ -383,7 +373,7 @@ def test_verdicts_per_fleet_size_and_rate(tmp_path):
     md = result.markdown
     assert "### robots = 2" in md and "### robots = 4" in md
     assert "**A**, clearly ahead of B" in md
-    assert "A; tie with B (intervals overlap)" in md
+    assert "A; tie with B (difference's interval reaches 0)" in md
     assert "A has the highest mean in 2 of 3 setting(s), clearly ahead in 1." in md
     assert "None: all" in md  # no violations
     assert "have no `jobs.csv`" in md  # synthetic rows have no run directories
@@ -488,3 +478,151 @@ def test_cells_of_study_json_without_a_result_are_named_as_not_run(tmp_path):
     md = write_report(path).markdown
     assert "1 cell(s) listed in `study.json` have no row in `results.csv` (not run yet): c1." in md
     assert "Study file: `study.toml`." in md
+
+
+# -- paired comparisons on a 2-arm, 5-seed study ----------------------------------------------
+# Good parts per hour of two controllers on seeds 1..5: the seeds' spread is shared (common
+# random numbers), B trails A by about one part per hour on every seed.
+PAIR_A = {1: 12.0, 2: 18.0, 3: 9.0, 4: 15.0, 5: 21.0}
+PAIR_B = {1: 11.0, 2: 16.5, 3: 8.0, 4: 14.2, 5: 19.6}
+
+
+def pair_study(path: Path, a: dict, b: dict, *, failed: tuple = ()) -> Path:
+    rows = []
+    for name, values in (("A", a), ("B", b)):
+        for seed, good in values.items():
+            rows.append(ok_row(f"c{len(rows):03d}", seed, good, controller=name))
+    for name, seed in failed:
+        rows.append({"cell": f"c{len(rows):03d}", "seed": seed, "controller": name}
+                    | {"status": "failed", "error": "RuntimeError: lost"})  # fmt: skip
+    seeds = sorted({*a, *b})
+    return write_study(path, {"controller": ["A", "B"]}, seeds, rows)
+
+
+def test_a_two_arm_five_seed_study_prints_paired_intervals_that_scipy_confirms(tmp_path):
+    result = write_report(pair_study(tmp_path / "s", PAIR_A, PAIR_B))
+    seeds = sorted(PAIR_A)
+    res = scipy_stats.ttest_rel([PAIR_A[s] for s in seeds], [PAIR_B[s] for s in seeds])
+    ci = res.confidence_interval(0.95)
+    (row,) = table_rows(result.markdown, "Comparisons")[1:]
+    mean, half = (ci.low + ci.high) / 2, (ci.high - ci.low) / 2
+    assert row == [
+        "all runs",
+        "A − B",
+        f"{mean:+.2f} ± {half:.2f}",
+        "yes",
+        "95 % CI, paired t on 5 common seeds, df 4",
+    ]
+    assert "Method: 95 % CI, paired t on 5 common seeds, df 4 (1 difference)." in result.markdown
+    assert "Every comparison is paired" in result.markdown
+    (ranking,) = result.summary.rankings
+    assert ranking.verdict is Verdict.CLEAR
+    d = ranking.differences["B"]
+    assert (d.low, d.high) == pytest.approx((ci.low, ci.high), rel=1e-12) and d.df == res.df
+    # The arms' own intervals overlap: only the pairing separates them.
+    a, b = (result.summary.throughput[(None, s, None)] for s in ("A", "B"))
+    assert a.low < b.high
+
+
+def test_a_failed_run_breaks_the_pairing_and_welch_is_named(tmp_path):
+    b = {s: v for s, v in PAIR_B.items() if s != 4}
+    result = write_report(pair_study(tmp_path / "s", PAIR_A, b, failed=(("B", 4),)))
+    res = scipy_stats.ttest_ind(list(PAIR_A.values()), list(b.values()), equal_var=False)
+    ci = res.confidence_interval(0.95)
+    (row,) = table_rows(result.markdown, "Comparisons")[1:]
+    method = f"95 % CI, Welch t (seeds differ: 4 in one arm only; n 5 and 4), df {res.df:.1f}"
+    mean, half = (ci.low + ci.high) / 2, (ci.high - ci.low) / 2
+    assert row == ["all runs", "A − B", f"{mean:+.2f} ± {half:.2f}", "no", method]
+    assert "1 of 1 comparisons are not paired: their series' ok seeds differ." in result.markdown
+    assert "unknown: seeds differ (run the missing seeds to pair)" in result.markdown
+
+
+def test_one_seed_gives_no_interval_and_says_so(tmp_path):
+    result = write_report(pair_study(tmp_path / "s", {1: 3.0}, {1: 2.0}))
+    md = result.markdown
+    assert "| all runs | 3.00 (n=1) | 2.00 (n=1) |" in md
+    assert "no interval: 1 seed in one arm" in md
+    assert "One seed: no interval and no spread to estimate how many seeds are needed" in md
+    assert "A; no interval (one seed) to compare with B" in md
+
+
+def smallest_n(sd: float, h: float) -> int:
+    """The fewest seeds whose 95 % t interval is at most h wide, counting up."""
+    n = 2
+    while scipy_stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n) > h:
+        n += 1
+    return n
+
+
+def test_the_replications_section_says_which_intervals_need_how_many_seeds(tmp_path):
+    path = pair_study(tmp_path / "s", PAIR_A, PAIR_B)
+    result = write_report(path)
+    md = result.markdown
+    rows = {r[1]: r for r in table_rows(md, "Replications")[1:]}
+    seeds = sorted(PAIR_A)
+    d = [PAIR_A[s] - PAIR_B[s] for s in seeds]
+    target_a = 0.05 * statistics.mean(PAIR_A.values())
+    target_b = 0.05 * statistics.mean(PAIR_B.values())
+    # 5 % of the mean: each arm's spread across seeds needs many seeds...
+    need_a = smallest_n(statistics.stdev(PAIR_A.values()), target_a)
+    need_b = smallest_n(statistics.stdev(PAIR_B.values()), target_b)
+    hw_a = T975[4] * statistics.stdev(PAIR_A.values()) / math.sqrt(5)
+    assert rows["A"] == ["all runs", "A", "5", f"{hw_a:.2f}", f"{target_a:.2f}", str(need_a)]
+    assert rows["B"][-1] == str(need_b)
+    assert "2 of 3 intervals are wider than the target:" in md
+    assert f"To meet the target: {max(need_a, need_b)} for every mean" in md
+    # ...while the paired difference (target: 5 % of the leader's mean) already meets it.
+    assert "A − B" not in rows
+    advice = {a.series: a for a in result.summary.advice}
+    assert advice["A − B"].enough and advice["A − B"].target == pytest.approx(target_a)
+    assert advice["A − B"].needed == smallest_n(statistics.stdev(d), target_a) <= 5
+    # An absolute target of 0.2 good parts/h: the difference now needs more seeds too.
+    summary = write_report(path, tmp_path / "abs", half_width=HalfWidth(0.2, False)).summary
+    verdicts = {a.series: (a.enough, a.needed) for a in summary.advice}
+    need_d = smallest_n(statistics.stdev(d), 0.2)
+    assert verdicts["A − B"] == (False, need_d) and need_d > 5
+    assert verdicts["A"] == (False, smallest_n(statistics.stdev(PAIR_A.values()), 0.2))
+    text = (tmp_path / "abs" / "report.md").read_text()
+    assert "Target half-width: 0.2 good parts/h" in text
+    assert f"To meet the target: {need_d} seeds for every difference to the leader" in text
+
+
+def test_half_width_parses_a_share_or_good_parts_per_hour():
+    assert HalfWidth.parse("5%") == HalfWidth(0.05, True)
+    assert HalfWidth.parse(" 0.5 ") == HalfWidth(0.5, False)
+    assert HalfWidth.parse("5%").of(20.0) == pytest.approx(1.0)
+    for bad in ("", "five", "0", "-1%", "nan", "%"):
+        with pytest.raises(ValueError, match="positive number"):
+            HalfWidth.parse(bad)
+
+
+def test_the_throughput_figure_cuts_error_bars_at_zero(tmp_path):
+    summary = summarise(load_study(pair_study(tmp_path / "s", {1: 0.0, 2: 0.0, 3: 3.0},
+                                              {1: 0.0, 2: 1.0, 3: 0.0})))  # fmt: skip
+    (ax,) = throughput_figure(summary).axes
+    bars = [c for c in ax.containers if isinstance(c, BarContainer)]
+    assert bars
+    lows = [
+        seg[0][1] for line in ax.collections for seg in line.get_segments()
+    ]  # error-bar segments: (x, low) to (x, high)
+    assert min(lows) == 0.0  # the t interval would reach below zero
+
+
+def test_released_jobs_are_compared_seed_by_seed_for_common_random_numbers(tmp_path):
+    a, b = {1: 4.0, 2: 6.0}, {1: 3.0, 2: 5.5}
+    path = pair_study(tmp_path / "s", a, b)
+    with open(path / "results.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    header = "id,part,released_s,delivered_s,outcome\n"
+    for r in rows:
+        # Seed 2 of B released its second job later than seed 2 of A: not the same arrivals.
+        late = r["controller"] == "B" and r["seed"] == "2"
+        jobs = f"j1,prism,10.0,900.0,good\nj2,prism,{'75.5' if late else '70.0'},,\n"
+        (path / "cells" / r["cell"]).mkdir(parents=True)
+        (path / "cells" / r["cell"] / "jobs.csv").write_text(header + jobs)
+    summary = write_report(path).summary
+    assert summary.arrivals_checked == 2
+    assert summary.arrivals_differ == ("all runs: A and B, seed 2",)
+    assert "the released jobs differ in 1 of 2 pairs of runs (all runs: A and B, seed 2)" in (
+        (path / "report.md").read_text()
+    )

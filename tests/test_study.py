@@ -15,7 +15,7 @@ import pytest
 
 from fleet.engine import World
 from fleet.errors import FleetError
-from fleet.scenario import load_scenario
+from fleet.scenario import REPO_ROOT, load_scenario
 from fleet.study.sweep import (
     KPI_COLUMNS,
     CellStatus,
@@ -414,3 +414,17 @@ def test_an_unreadable_study_or_base_scenario_is_an_error_naming_it(tmp_path):
     study.write_text("[study]\nscenario = 'base.toml'\n", encoding="utf-8")
     with pytest.raises(StudyError, match=r"study\.scenario = 'base\.toml': cannot read"):
         load_study(study)
+
+
+SHIPPED_STUDIES = sorted((REPO_ROOT / "studies").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", SHIPPED_STUDIES, ids=lambda p: p.name)
+def test_every_shipped_study_loads_and_runs_every_arm_on_the_same_seeds(path):
+    """Common random numbers need every grid point on the same seeds (`fleet report` pairs them)."""
+    study = load_study(path)
+    seeds_of: dict[tuple, list[int]] = {}
+    for cell in study.cells:
+        seeds_of.setdefault(tuple(sorted(cell.params.items())), []).append(cell.seed)
+    assert len(seeds_of) > 1
+    assert all(seeds == list(study.seeds) for seeds in seeds_of.values())

@@ -75,6 +75,12 @@ class Dispatch:
         #: Jobs to announce at the next bus round (auctions), and when each was last announced.
         self._announce: set[str] = set()
         self._announced_s: dict[str, float] = {}
+        #: Robots the charging policy keeps from new jobs (`fleet.engine.energy`).
+        self.off_duty: set[str] = set()
+
+    def available(self, robot: RobotState) -> bool:
+        """Whether `robot` may be given jobs: in service and not kept off duty to charge."""
+        return robot.in_service and robot.id not in self.off_duty
 
     def request(self) -> None:
         """Ask for a dispatch: at this instant (assigners), or at the next bus round (auctions)."""
@@ -98,7 +104,7 @@ class Dispatch:
             return  # already run at this instant, before a bus round
         self._scheduled = False
         open_jobs = [rec for rec in self.jobs if rec.open]
-        idle = [r for r in self.robots.values() if r.job is None and r.in_service]
+        idle = [r for r in self.robots.values() if r.job is None and self.available(r)]
         if not open_jobs or not idle:
             return
         if not self._apply_assignments(open_jobs, self.dispatcher.assign):
@@ -114,7 +120,7 @@ class Dispatch:
             free = {
                 r.id
                 for r in self.robots.values()
-                if r.job is None and r.in_service and r.id not in held
+                if r.job is None and self.available(r) and r.id not in held
             }
             if free:
                 self._apply_assignments(
@@ -122,14 +128,14 @@ class Dispatch:
                 )
 
     def _statuses(self, exclude: AbstractSet[str] = frozenset()) -> list[RobotStatus]:
-        """The robots as dispatchers see them (robots out of service, faulted or broken down,
-        are left out: they take no jobs, and so are those in `exclude`)."""
+        """The robots as dispatchers see them (robots out of service or off duty are left out:
+        they take no jobs, and so are those in `exclude`)."""
         return [
             RobotStatus(
                 r.id, r.x, r.y, r.vx, r.vy, r.job is None, r.job and r.job.job.id, len(r.queue)
             )
             for r in self.robots.values()
-            if r.in_service and r.id not in exclude
+            if self.available(r) and r.id not in exclude
         ]
 
     def announcements(self, t: float) -> list[Announcement]:
@@ -165,7 +171,7 @@ class Dispatch:
             # A robot that gave a job back lately does not win it again yet.
             and b.robot not in open_jobs[b.job].held_off(t)
             and b.robot in self.robots
-            and self.robots[b.robot].in_service
+            and self.available(self.robots[b.robot])
             and not self.robots[b.robot].queue
         ]
         self.recorder.stats["bids"] += len(bids)
@@ -214,7 +220,8 @@ class Dispatch:
             robot = self.robots.get(a.robot) if valid else None
             # A robot takes a job when idle, or (auctions) behind its current one if none waits.
             busy = robot is not None and (
-                not robot.in_service or (robot.job is not None and (not queue or bool(robot.queue)))
+                not self.available(robot)
+                or (robot.job is not None and (not queue or bool(robot.queue)))
             )
             if rec is None or robot is None or busy or a.job in taken_jobs:
                 self.recorder.stats["assignments_rejected"] += 1
@@ -252,6 +259,12 @@ class Dispatch:
         ends. A job handed back more than `[jobs] max_handbacks` times fails, so a job nobody
         can deliver does not loop; a hand-back that is not `counted` (a breakdown: no fault of
         the job's) does not count towards that.
+
+        Any caller may hand a job back (the bus rounds for blocked robots and lost agents;
+        breakdowns...): the attempt ends on the job's record (`JobRecord.attempts`) with
+        `reason` as given, and its print is scrapped; `reason` is what attempts.csv and
+        summary.json's ``handbacks.by_reason`` show, so keep it short and alike for alike
+        causes (``"breakdown"``, ``"handed back: blocked"``).
         """
         t = self.env.now
         if rec is robot.job:
@@ -262,6 +275,10 @@ class Dispatch:
             return
         # The caps the robot printed under stay on its record for the safety check.
         robot.past_caps.extend(rec.caps.window(-math.inf, t).pieces)
+        # The attempt is kept, with what it printed (scrapped) and why it ended.
+        counts = rec.handbacks - rec.excused_handbacks + counted
+        failing = counted and counts > self.scenario.jobs.max_handbacks
+        rec.end_attempt(t, "failed" if failing else "handed_back", reason)
         rec.robot = rec.assigned_s = rec.started_s = rec.arrived_s = rec.print_start_s = None
         rec.caps = CapSchedule()
         rec.leg = 0
@@ -277,7 +294,7 @@ class Dispatch:
             self.env.timeout(hold).callbacks.append(lambda _event: self.request())
         self.recorder.stats["jobs_handed_back"] += 1
         self.recorder.event(t, "handed_back", rec.job.id, robot.id, reason)
-        if rec.handbacks - rec.excused_handbacks > self.scenario.jobs.max_handbacks:
+        if failing:
             rec.failed_s, rec.failure = t, reason
             self.recorder.event(t, "failed", rec.job.id, robot.id, reason)
             log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)

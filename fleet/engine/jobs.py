@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -17,7 +18,54 @@ from fleet.scenario import JobsConfig, ScriptedJob
 if TYPE_CHECKING:
     from fleet.printing.quality import QualityPrediction
 
-__all__ = ["JobRecord", "JobSource", "destination_stations"]
+__all__ = ["ATTEMPT_RESULTS", "Attempt", "JobRecord", "JobSource", "destination_stations"]
+
+#: How an attempt at a job ended: delivered; handed back (the job was offered again); handed
+#: back for the last time (the job failed: too many hand-backs); still under way at the run's end.
+ATTEMPT_RESULTS = ("delivered", "handed_back", "failed", "unfinished")
+
+
+@dataclass(frozen=True, slots=True)
+class Attempt:
+    """One robot's try at a job: from its assignment to how it ended.
+
+    A job handed back (blocked, its robot's agent lost, a breakdown: any reason given to
+    `Dispatch.hand_back`) has one attempt per robot that held it; the print of a handed-back
+    attempt is scrapped and printed anew by the next one.
+    """
+
+    job: str
+    #: 1 for the first attempt at the job, then 2, 3... (the ``attempt`` column of tasks.csv).
+    number: int
+    robot: str
+    assigned_s: float
+    #: When the robot set off for the job (None: it never did).
+    started_s: float | None
+    #: When its print started (None: it never did, or the job prints nothing).
+    print_start_s: float | None
+    #: When the attempt ended (None: unfinished at the run's end).
+    ended_s: float | None
+    #: One of `ATTEMPT_RESULTS`.
+    result: str
+    #: Why it was handed back (`Dispatch.hand_back`'s reason); None when it was not.
+    reason: str | None
+    #: The print tasks it printed, ``(kind, start_s, end_s)`` on the clock, cropped where the
+    #: attempt ended (not cropped while unfinished: the print's plan goes on past the run).
+    tasks: tuple[tuple[str, float, float], ...]
+
+    def printed_s(self, now: float = math.inf) -> float:
+        """Print time done in this attempt up to `now` (s): its tasks' lengths, cropped."""
+        return float(sum(max(0.0, min(end, now) - start) for _, start, end in self.tasks))
+
+    @property
+    def scrapped(self) -> bool:
+        """Handed back: whatever it printed is scrapped."""
+        return self.result in ("handed_back", "failed")
+
+    @property
+    def scrapped_s(self) -> float:
+        """Print time scrapped with the hand-back (s); 0 for an attempt not handed back."""
+        return self.printed_s() if self.scrapped else 0.0
 
 
 @dataclass(slots=True)
@@ -60,6 +108,52 @@ class JobRecord:
     #: When and why the job was given up (too many hand-backs); None while it is not.
     failed_s: float | None = None
     failure: str | None = None
+    #: The attempts that ended in a hand-back, in order (`end_attempt`); the attempt under way
+    #: or delivered is the record's own fields (`all_attempts`).
+    attempts: list[Attempt] = field(default_factory=list)
+
+    def _attempt(self, end: float | None, result: str, reason: str | None) -> Attempt | None:
+        """The attempt the record's fields describe, ending at `end` (None: no robot holds it)."""
+        if self.robot is None or self.assigned_s is None:
+            return None
+        tasks: list[tuple[str, float, float]] = []
+        start = self.print_start_s
+        if start is not None:
+            stop = math.inf if end is None else end
+            for task in self.tasks:
+                a, b = start + task.start_s, min(start + task.end_s, stop)
+                if b > a:
+                    tasks.append((task.kind, a, b))
+        return Attempt(
+            self.job.id,
+            len(self.attempts) + 1,
+            self.robot,
+            float(self.assigned_s),
+            None if self.started_s is None else float(self.started_s),
+            None if start is None else float(start),
+            None if end is None else float(end),
+            result,
+            reason,
+            tuple(tasks),
+        )
+
+    def end_attempt(self, t: float, result: str, reason: str) -> Attempt | None:
+        """Keep the attempt under way as ended at `t` by a hand-back (`result` "handed_back" or
+        "failed", for `reason`); the caller then clears the record's fields for the next one."""
+        attempt = self._attempt(t, result, reason)
+        if attempt is not None:
+            self.attempts.append(attempt)
+        return attempt
+
+    def all_attempts(self) -> list[Attempt]:
+        """Every attempt at the job so far: the handed-back ones, then the one delivered or
+        still under way ("unfinished")."""
+        current = self._attempt(
+            self.delivered_s,
+            "unfinished" if self.delivered_s is None else "delivered",
+            None,
+        )
+        return [*self.attempts, *([current] if current is not None else [])]
 
     @property
     def print_end_s(self) -> float | None:
@@ -113,7 +207,7 @@ def destination_stations(floor: Floor, config: JobsConfig, source: str) -> list[
                     f"no such station on {floor.source} (known: {', '.join(sorted(known))})",
                 )
         return list(config.stations)
-    names = [s.name for s in floor.spec.stations if s.kind != "depot"]
+    names = [s.name for s in floor.spec.stations if s.kind not in ("depot", "charger")]
     if not names:
         raise ScenarioError(
             source,

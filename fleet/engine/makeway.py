@@ -98,8 +98,8 @@ class MakeWay:
 
     def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
         """Where `robot` heads now: nowhere while broken down, its spot aside while it still
-        holds one, else where its job sends it, else home (or nowhere, idle without
-        `return_home`)."""
+        holds one, else where its job sends it, else its charger (`RobotState.charger_at`), else
+        home (or nowhere, idle without `return_home`)."""
         if robot.broken:
             return None  # broken down: it stays where it stopped
         aside = robot.aside
@@ -109,6 +109,8 @@ class MakeWay:
             return aside.spot
         if robot.goal is not None:
             return robot.goal
+        if robot.charger_at is not None:
+            return robot.charger_at
         return robot.home if robot.return_home else None
 
     def ask(

@@ -77,13 +77,16 @@ class RobotState:
     #: Unique rank among the robots (higher goes first), before deadlock boosts.
     rank: int = 0
     #: Its agent is gone (lost or left): the robot is braked and takes no jobs until an agent
-    #: hosts it again.
+    #: hosts it again. Also a robot whose battery ran flat (`[battery]`, stranded), for good.
     faulted: bool = False
     #: Broken down (`[breakdowns]`): braked where it stopped, takes no jobs until repaired.
     broken: bool = False
     #: Standing at a charger taking charge (`[battery]`); the charging policy says whether it
     #: may be given a job meanwhile.
     charging: bool = False
+    #: The charger it heads for or stands at (`fleet.engine.energy`): its goal while it has no
+    #: job, instead of home.
+    charger_at: tuple[float, float] | None = None
     #: Progress watch for deadlock detection: closest distance to the current goal so far, and
     #: when it last improved by `PROGRESS_M`.
     best_gap: float = math.inf

@@ -16,26 +16,59 @@ Output contract (extend it, never break it):
   jobs_completed, turned_rad, radius_m, goal_commands, goal_errors (commands sent while it had
   somewhere to go, and how many were errors)}], stuck_robots [{robot, reason}] (robots whose
   every such command was an error: they could never move; `fleet run` exits 1), digest (sha256
-  of the trajectories: the same seed gives the same digest); for scripted (point-to-point)
+  of the trajectories: the same seed gives the same digest), handbacks {count, by_reason
+  {reason: count}, scrapped_print_s, scrapped_parts} (attempts handed back, as in
+  attempts.csv), deadlocks (robots the deadlock watch found stalled), faults {agents_lost,
+  agents_left, robots_orphaned, robots_rejoined}, jobs.attempts; for scripted (point-to-point)
   runs also arrivals {robot: when it reached the destination of its last trip, s, or null};
   breakdowns {configured, mtbf_s, mttr_s, availability, breakdowns, repaired, repair_s,
   mean_repair_s, jobs_handed_back, print_scrapped_s, per_robot [{id, availability, breakdowns,
-  repair_s, jobs_handed_back}]} (`fleet.engine.breakdowns`; availability 1 without breakdowns).
+  repair_s, jobs_handed_back}]} (`fleet.engine.breakdowns`; over the whole run, warm-up
+  included; availability 1 without breakdowns).
+  KPIs over time (`fleet.engine.kpis`, `fleet.engine.activity`): warmup_s (the scenario's;
+  throughput_per_h, throughput_good_per_h, mean_lead_time_s and everything below leave out
+  [0, warmup_s); the jobs counts cover the whole run), assign_wait_s and lead_time_s {n, mean,
+  p50, p95, max} (release to first assignment, counted when the assignment is at or after
+  warmup_s; release to delivery, counted when the delivery is), queue_mean, wip_mean
+  (time-weighted over [warmup_s, end)), queue_max, wip_max (over the run),
+  suggested_warmup_s and suggested_warmup_at_limit (MSER-5 on the WIP, `fleet.engine.warmup`),
+  states {from_s, to_s, shares {state: fleet-wide share}, robots {id: {state: {seconds,
+  share}}}} with the states idle, driving_empty, printing_driving, printing_at_rest, blocked,
+  faulted, charging: each robot's seconds sum to to_s - from_s (the run's length less the
+  warm-up).
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
-  arrived, delivered; breakdown and repaired with the robot, and the job it had).
+  arrived, delivered, and deadlock, make_way, handed_back, failed, fault, rejoined, breakdown,
+  repaired; with ``[battery]`` also charge_go, charge_start, charge_end, stranded, with the
+  charger as the station).
 - ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
   predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
   printed); started/finished are the print's start and end (for a job with nothing to print,
   started is when the robot set off). summary quality counts every print judged, delivered or
   not; jobs.good/defective count delivered jobs only.
-- ``caps.csv``: robot, job, kind, start_s, end_s, cap: the print-task speed caps each robot was
-  under (absolute seconds; written when any job prints).
-- ``tasks.csv``: robot, job, kind, start_s, end_s: every print task, capped or not, on the clock.
+- ``caps.csv``: robot, job, kind, start_s, end_s, cap, attempt: the print-task speed caps each
+  robot was under (absolute seconds; written when any job prints), in every attempt at a job.
+- ``tasks.csv``: robot, job, kind, start_s, end_s, attempt: every print task, capped or not, on
+  the clock, in every attempt at a job (``attempt`` as in attempts.csv), cut where the attempt
+  ended: a handed-back attempt's tasks end at the hand-back.
+- ``attempts.csv``: job, attempt, robot, assigned_s, started_s, print_start_s, ended_s, result,
+  reason, printed_s, scrapped_s: one row per robot's try at a job (attempt 1, 2... of that
+  job), from its assignment to how it ended: result delivered, handed_back (with the reason
+  given to the hand-back: blocked, its agent lost or gone, a breakdown...), failed (handed
+  back once too often: the job is given up) or unfinished (under way at the run's end, ended_s
+  empty); printed_s is the print time done in the attempt, scrapped_s that of a handed-back
+  attempt (its part is scrapped; the next attempt prints anew).
 - ``plans.csv``: t_sent, robot, k, t, x, y: the planned horizons controllers sent (sample k of
   the plan sent at t_sent; a plan holds until the robot's next), at most one per robot per
   second, samples at least half a second apart.
 - ``violations.csv``: the first violations in full, when there are any.
+- ``states.csv``: robot, state, seconds, share: each robot's time in each state over
+  [warmup_s, end) (summary.json ``states``; defined in `fleet.engine.activity`).
+- ``wip.csv``: t, queue, wip: jobs released and not assigned, and released and neither
+  delivered nor failed, from t = 0 and at every time either changes (`fleet.engine.kpis`).
+- ``battery.csv`` (with ``[battery]``): t, robot, charge (share of capacity), state (working,
+  to_charger, charging, stranded), at least every 10 s per robot and at every change of state;
+  summary.json then has ``battery`` (`fleet.engine.energy.Energy.summary`).
 """
 
 from __future__ import annotations
@@ -45,6 +78,7 @@ import hashlib
 import json
 import math
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,9 +88,20 @@ import numpy as np
 from fleet.floor import Floor
 from fleet.plugins import SolveReport
 
-__all__ = ["Event", "Recorder", "Trajectory", "PLAN_RECORD_S", "PLAN_SAMPLE_S", "RUN_FILES"]
+__all__ = [
+    "Event",
+    "Recorder",
+    "Trajectory",
+    "PLAN_RECORD_S",
+    "PLAN_SAMPLE_S",
+    "RUN_FILES",
+    "ATTEMPT_COLUMNS",
+    "JOB_COLUMNS",
+]
 
-#: Every file `Recorder.write` may write into a run directory (the last two only when needed).
+#: Every file a run writes into its run directory (caps.csv and violations.csv only when
+#: needed; states.csv and wip.csv come from `fleet.engine.kpis`, written by `World.write`;
+#: battery.csv, with ``[battery]``, from `fleet.engine.energy`).
 RUN_FILES = (
     "summary.json",
     "trajectories.csv",
@@ -65,7 +110,11 @@ RUN_FILES = (
     "tasks.csv",
     "plans.csv",
     "caps.csv",
+    "attempts.csv",
     "violations.csv",
+    "states.csv",
+    "wip.csv",
+    "battery.csv",
 )
 
 #: Shortest time (s) between two planned horizons the recorder keeps for one robot.
@@ -173,13 +222,17 @@ class Recorder:
         summary: dict[str, Any],
         floor: Floor,
         violations: list,
-        caps: list[tuple[str, str, str, float, float, float]] | None = None,
+        caps: list[tuple] | None = None,
         jobs: list[dict[str, Any]] | None = None,
-        tasks: list[tuple[str, str, str, float, float]] | None = None,
+        tasks: list[tuple] | None = None,
+        attempts: list[dict[str, Any]] | None = None,
     ) -> None:
-        """Write the run directory; `caps` rows are (robot, job, kind, start_s, end_s, cap),
-        `jobs` rows are `summary.job_rows` dicts, `tasks` rows (robot, job, kind, start_s, end_s)
-        every print task on the clock. ``plans.csv`` holds the kept planned horizons."""
+        """Write the run directory; `caps` rows are (robot, job, kind, start_s, end_s, cap,
+        attempt), `jobs` rows are `summary.job_rows` dicts, `tasks` rows (robot, job, kind,
+        start_s, end_s, attempt) every print task on the clock, `attempts` rows
+        `summary.attempt_rows` dicts (attempts.csv, written when given). Rows without their
+        attempt (the columns before it only) are the first attempt's. ``plans.csv`` holds the
+        kept planned horizons."""
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(
             json.dumps(summary, indent=2) + "\n", encoding="utf-8"
@@ -192,10 +245,15 @@ class Recorder:
                 w.writerow([f"{e.t:.6f}", e.event, e.job, e.robot, e.station])
         if jobs is not None:
             _write_jobs(out_dir / "jobs.csv", jobs)
+        if attempts is not None:
+            _write_dicts(out_dir / "attempts.csv", ATTEMPT_COLUMNS, attempts)
         _write_rows(
             out_dir / "tasks.csv",
-            ("robot", "job", "kind", "start_s", "end_s"),
-            [(r, j, k, f"{a:.6f}", f"{b:.6f}") for r, j, k, a, b in tasks or ()],
+            ("robot", "job", "kind", "start_s", "end_s", "attempt"),
+            [
+                (r, j, k, f"{a:.6f}", f"{b:.6f}", n)
+                for r, j, k, a, b, n in map(_numbered(5), tasks or ())
+            ],
         )
         _write_rows(
             out_dir / "plans.csv",
@@ -210,9 +268,9 @@ class Recorder:
         if caps:
             with open(cpath, "w", newline="", encoding="utf-8") as fh:
                 w = csv.writer(fh)
-                w.writerow(["robot", "job", "kind", "start_s", "end_s", "cap"])
-                for robot, job, kind, start, end, cap in caps:
-                    w.writerow([robot, job, kind, f"{start:.6f}", f"{end:.6f}", f"{cap:g}"])
+                w.writerow(["robot", "job", "kind", "start_s", "end_s", "cap", "attempt"])
+                for robot, job, kind, start, end, cap, n in map(_numbered(6), caps):
+                    w.writerow([robot, job, kind, f"{start:.6f}", f"{end:.6f}", f"{cap:g}", n])
         elif cpath.exists():
             cpath.unlink()
         vpath = out_dir / "violations.csv"
@@ -244,6 +302,21 @@ class Recorder:
                 )
 
 
+#: Columns of attempts.csv, in order (rows: `fleet.engine.summary.attempt_rows`).
+ATTEMPT_COLUMNS = (
+    "job",
+    "attempt",
+    "robot",
+    "assigned_s",
+    "started_s",
+    "print_start_s",
+    "ended_s",
+    "result",
+    "reason",
+    "printed_s",
+    "scrapped_s",
+)
+
 #: Columns of jobs.csv, in order (the issue's list first, then extras).
 JOB_COLUMNS = (
     "id",
@@ -267,18 +340,28 @@ def _write_rows(path: Path, header: tuple[str, ...], rows: list[tuple]) -> None:
         w.writerows(rows)
 
 
-def _write_jobs(path: Path, rows: list[dict[str, Any]]) -> None:
-    def cell(value: Any) -> str:
-        if value is None:
-            return ""
-        if isinstance(value, bool):
-            return "true" if value else "false"
-        if isinstance(value, float):
-            return f"{value:.6f}"
-        return str(value)
+def _numbered(width: int) -> Callable[[tuple], tuple]:
+    """A row of `width` cells and its attempt: given, or 1 for a row without one."""
+    return lambda row: tuple(row) if len(row) > width else (*row, 1)
 
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:.6f}"
+    return str(value)
+
+
+def _write_dicts(path: Path, columns: tuple[str, ...], rows: list[dict[str, Any]]) -> None:
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow(JOB_COLUMNS)
+        w.writerow(columns)
         for row in rows:
-            w.writerow([cell(row[c]) for c in JOB_COLUMNS])
+            w.writerow([_cell(row[c]) for c in columns])
+
+
+def _write_jobs(path: Path, rows: list[dict[str, Any]]) -> None:
+    _write_dicts(path, JOB_COLUMNS, rows)

@@ -176,9 +176,11 @@ class Sensing:
         # lower priority that are not at their own goals, to step aside. A robot going home
         # asks only once it is within `HOME_REACH_M` of it, shut out by the robots parked
         # round it (a robot that stepped aside could not get back); asking from further off
-        # moved idle robots round and round the crowded depots for nothing.
+        # moved idle robots round and round the crowded depots for nothing. So does a robot
+        # going to its charger.
         asks = r.job is not None or (
-            goal == r.home and math.hypot(goal[0] - r.x, goal[1] - r.y) <= HOME_REACH_M
+            goal in (r.home, r.charger_at)
+            and math.hypot(goal[0] - r.x, goal[1] - r.y) <= HOME_REACH_M
         )
         movable = [
             o

@@ -2,21 +2,23 @@
 
 `check_safety` judges the recorded trajectories; `summarise` turns the robots, the jobs and
 what the recorder collected into summary.json's object, with the job accounting, the quality,
-solver and latency statistics; `task_rows`, `cap_rows` and `job_rows` are the rows of
-tasks.csv, caps.csv and jobs.csv (the output contract is in `fleet.engine.recorder`).
+solver and latency statistics and the hand-backs; `task_rows`, `cap_rows`, `job_rows` and
+`attempt_rows` are the rows of tasks.csv, caps.csv, jobs.csv and attempts.csv (the output
+contract is in `fleet.engine.recorder`).
 """
 
 from __future__ import annotations
 
 import logging
-import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
 
+from fleet.engine.activity import Activity
 from fleet.engine.jobs import JobRecord
+from fleet.engine.kpis import job_kpis
 from fleet.engine.motion import EFFECT_EPS_S, RobotState
 from fleet.engine.recorder import Recorder
 from fleet.engine.safety import SafetyChecker, SafetyReport
@@ -31,6 +33,8 @@ __all__ = [
     "task_rows",
     "cap_rows",
     "job_rows",
+    "attempt_rows",
+    "handback_summary",
     "quality_summary",
     "solver_summary",
     "latency_summary",
@@ -63,9 +67,10 @@ def summarise(
     wall_time_s: float,
     bus_rounds: int,
     bus_stats: Mapping[str, int],
+    activity: Activity | None = None,
 ) -> dict[str, Any]:
     """summary.json's object for a run that ended at `now` after `wall_time_s` seconds of
-    wall time (see `fleet.engine.recorder` for its keys)."""
+    wall time (see `fleet.engine.recorder` for its keys); `activity` adds the robots' states."""
     completed = [rec for rec in jobs if rec.delivered_s is not None]
     failed = [rec for rec in jobs if rec.failed_s is not None]
     # No job may be lost: every released job is delivered, given up, held by a robot
@@ -85,13 +90,17 @@ def summarise(
             len(in_progress),
         )
     good = [rec for rec in completed if rec.quality is None or rec.quality.passed]
+    # The KPIs leave out the warm-up: deliveries from `warmup_s` on, over the time since.
+    start, end = scenario.warmup_s, min(now, scenario.duration_s)
+    measured = [rec for rec in completed if rec.delivered_s >= start]
+    measured_good = [rec for rec in measured if rec.quality is None or rec.quality.passed]
     late = sum(
         1
         for rec in jobs
         if rec.late
         or (rec.delivered_s is None and rec.job.due_s is not None and now > rec.job.due_s)
     )
-    lead = [rec.lead_time_s for rec in completed]
+    lead = [rec.lead_time_s for rec in measured]
     per_robot = [
         {
             "id": rid,
@@ -105,7 +114,7 @@ def summarise(
         for rid, r in robots.items()
     ]
     # A run stopped early (Ctrl-C) is judged over the time it ran.
-    hours = min(now, scenario.duration_s) / 3600.0
+    hours = max(end - start, 0.0) / 3600.0
     summary = {
         "scenario": scenario.name,
         "scenario_file": scenario.source,
@@ -127,6 +136,8 @@ def summarise(
             "in_progress": len(in_progress),
             "accounted": accounted,
             "handed_back": sum(rec.handbacks for rec in jobs),
+            # Every robot's try at a job (`attempt_rows`): delivered, handed back or under way.
+            "attempts": sum(len(rec.all_attempts()) for rec in jobs),
             "assigned_open": sum(1 for rec in jobs if rec.robot and rec.delivered_s is None),
             "unassigned": sum(1 for rec in jobs if rec.open),
             # Delivered parts that passed the quality prediction (jobs with nothing to
@@ -136,12 +147,16 @@ def summarise(
             "defective": len(completed) - len(good),
             "late": late,
         },
-        "throughput_per_h": round(len(completed) / hours, 6) if hours > 0 else 0.0,
-        "throughput_good_per_h": round(len(good) / hours, 6) if hours > 0 else 0.0,
+        "throughput_per_h": round(len(measured) / hours, 6) if hours > 0 else 0.0,
+        "throughput_good_per_h": round(len(measured_good) / hours, 6) if hours > 0 else 0.0,
         "mean_lead_time_s": round(float(np.mean(lead)), 6) if lead else None,
         "distance_m": round(sum(p["distance_m"] for p in per_robot), 6),
         "violations": dict(safety.counts),
         "faults": dict(recorder.faults),
+        "handbacks": handback_summary(jobs),
+        # Robots the deadlock watch found stalled (also the engine's ``deadlocks``); .get:
+        # reading the defaultdict must not add the key to the engine's counters.
+        "deadlocks": int(recorder.stats.get("deadlocks", 0)),
         "print_caps": {
             "caps": dict(sorted(scenario.print_caps.items())),
             "enforced": scenario.enforce_print_caps,
@@ -159,6 +174,10 @@ def summarise(
         },
         "digest": recorder.digest(),
     }
+    summary["warmup_s"] = start
+    summary.update(job_kpis(jobs, recorder.events, start, end))
+    if activity is not None:
+        summary["states"] = activity.summary(end)
     if scenario.jobs.mode == "scripted":
         # Point-to-point runs: when each robot reached the destination of its last trip
         # (a print may keep it there longer); None while a trip it was given is still open.
@@ -187,28 +206,60 @@ def stuck_robots(robots: Mapping[str, RobotState]) -> list[dict[str, str]]:
     ]
 
 
-def task_rows(jobs: Iterable[JobRecord]) -> list[tuple[str, str, str, float, float]]:
-    """Every print task that started: (robot, job, kind, start_s, end_s) rows on the clock,
-    cut at delivery."""
-    rows = []
-    for rec in jobs:
-        if rec.robot is None or rec.print_start_s is None:
-            continue
-        stop = math.inf if rec.delivered_s is None else rec.delivered_s
-        for task in rec.tasks:
-            start = rec.print_start_s + task.start_s
-            end = min(rec.print_start_s + task.end_s, stop)
-            if end > start:
-                rows.append((rec.robot, rec.job.id, task.kind, start, end))
-    return rows
+def task_rows(jobs: Iterable[JobRecord]) -> list[tuple[str, str, str, float, float, int]]:
+    """Every print task that started, in every attempt at a job: (robot, job, kind, start_s,
+    end_s, attempt) rows on the clock, cut where the attempt ended (delivered or handed back)."""
+    return [
+        (a.robot, a.job, kind, start, end, a.number)
+        for rec in jobs
+        for a in rec.all_attempts()
+        for kind, start, end in a.tasks
+    ]
 
 
 def cap_rows(
-    tasks: Iterable[tuple[str, str, str, float, float]], caps: Mapping[str, float]
-) -> list[tuple[str, str, str, float, float, float]]:
-    """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap) rows, from
-    the `task_rows` of the run."""
-    return [(*row, caps[row[2]]) for row in tasks if row[2] in caps]
+    tasks: Iterable[tuple[str, str, str, float, float, int]], caps: Mapping[str, float]
+) -> list[tuple[str, str, str, float, float, float, int]]:
+    """Every print cap a robot was under: (robot, job, kind, start_s, end_s, cap, attempt) rows,
+    from the `task_rows` of the run."""
+    return [(*row[:5], caps[row[2]], row[5]) for row in tasks if row[2] in caps]
+
+
+def attempt_rows(jobs: Iterable[JobRecord], now: float) -> list[dict[str, Any]]:
+    """One row per attempt at a job for ``attempts.csv`` (None: not happened), jobs in release
+    order and each job's attempts in order; ``printed_s`` is the print time done by `now`."""
+    return [
+        {
+            "job": a.job,
+            "attempt": a.number,
+            "robot": a.robot,
+            "assigned_s": a.assigned_s,
+            "started_s": a.started_s,
+            "print_start_s": a.print_start_s,
+            "ended_s": a.ended_s,
+            "result": a.result,
+            "reason": a.reason,
+            "printed_s": a.printed_s(now),
+            "scrapped_s": a.scrapped_s,
+        }
+        for rec in jobs
+        for a in rec.all_attempts()
+    ]
+
+
+def handback_summary(jobs: Iterable[JobRecord]) -> dict[str, Any]:
+    """summary.json's ``handbacks`` object: attempts handed back, by reason, and the print time
+    and the parts they scrapped."""
+    ended = [a for rec in jobs for a in rec.attempts]
+    by_reason: dict[str, int] = defaultdict(int)
+    for a in ended:
+        by_reason[a.reason or ""] += 1
+    return {
+        "count": len(ended),
+        "by_reason": dict(sorted(by_reason.items())),
+        "scrapped_print_s": round(float(sum(a.scrapped_s for a in ended)), 6),
+        "scrapped_parts": sum(1 for a in ended if a.scrapped_s > 0),
+    }
 
 
 def job_rows(jobs: Iterable[JobRecord], now: float) -> list[dict[str, Any]]:

@@ -25,10 +25,13 @@ import numpy as np
 import simpy
 
 from fleet.bus import AgentHost, Exchange
+from fleet.engine.activity import Activity
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.breakdowns import Breakdowns
 from fleet.engine.dispatch import Dispatch
+from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
+from fleet.engine.kpis import STATES_CSV, WIP_CSV, wip_rows, write_rows
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
@@ -37,12 +40,19 @@ from fleet.engine.recorder import Recorder
 from fleet.engine.rounds import BusRounds
 from fleet.engine.safety import SafetyReport
 from fleet.engine.sensing import Sensing
-from fleet.engine.summary import cap_rows, check_safety, job_rows, summarise, task_rows
+from fleet.engine.summary import (
+    attempt_rows,
+    cap_rows,
+    check_safety,
+    job_rows,
+    summarise,
+    task_rows,
+)
 from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
-from fleet.plugins import RobotSpec, SolveReport, load_dispatcher
-from fleet.scenario import Scenario, check_fleet, parse_latency
+from fleet.plugins import RobotSpec, SolveReport, load_charging_policy, load_dispatcher
+from fleet.scenario import Scenario, check_fleet, check_warmup, parse_latency
 
 __all__ = ["World", "RunResult"]
 
@@ -87,6 +97,7 @@ class World:
         self.scenario = scenario
         self.floor = load_run_floor(scenario, floor)
         check_fleet(scenario, self.floor.spec.clearance)
+        check_warmup(scenario)  # --duration or code may have made the run shorter than it
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
@@ -97,6 +108,8 @@ class World:
         #: The planner dispatchers get for travel-time estimates (the first group's limits).
         self.planner = self.planner_for(next(iter(self.robots.values())).spec)
         self.recorder = Recorder(list(self.robots))
+        #: Time per robot per state (`fleet.engine.activity`), counted step by step.
+        self.activity = Activity(self.robots, scenario.arrival_tolerance_m, scenario.warmup_s)
         self.jobs: list[JobRecord] = []
         self.job_source = JobSource(self.floor, scenario.jobs, self.rng, scenario.source)
         placement.check_reachable(homes, self.job_source.stations)
@@ -121,6 +134,21 @@ class World:
             self.recorder,
             self.dispatcher,
         )
+        #: Batteries, chargers and the charging policy (`[battery]`); None: no batteries.
+        self.energy: Energy | None = None
+        if scenario.battery is not None:
+            policy = self._plugin("charging", load_charging_policy)
+            self.energy = Energy(
+                self.env,
+                scenario.battery,
+                scenario.source,
+                self.floor,
+                self.robots,
+                self.recorder,
+                self.dispatch,
+                policy,
+                scenario.charging.name,
+            )
         self.lifecycle = JobLifecycle(
             self.env,
             scenario,
@@ -257,6 +285,8 @@ class World:
                     robot.x, robot.y, robot.vx, robot.vy, robot.ax, robot.ay
                 )
             self.recorder.sample(robot.id, env.now, robot.x, robot.y, robot.vx, robot.vy)
+            if self.energy is not None:
+                self.energy.tick(robot)
             if robot.turn_rate is not None:
                 self.turning.follow_heading(robot)
             if robot.job is not None and at_rest_near(robot, robot.goal, tol):
@@ -267,6 +297,9 @@ class World:
             else:
                 # The bus round queued the command with its latency: blend what is in force.
                 robot.ax, robot.ay = robot.step_input(env.now, period)
+            if self.energy is not None:
+                self.energy.hold(robot)  # a flat battery brakes
+            self.activity.step(robot, env.now)
             robot.tick += 1
             yield env.timeout(period)
 
@@ -354,8 +387,11 @@ class World:
             wall_time_s=wall_time,
             bus_rounds=self.rounds.count,
             bus_stats=self.exchange.stats,
+            activity=self.activity,
         )
         summary["breakdowns"] = self.breakdowns.summary(float(self.env.now))
+        if self.energy is not None:
+            summary["battery"] = self.energy.summary(float(self.env.now))
         return RunResult(summary, safety, list(self.jobs))
 
     def write(self, out: Path) -> None:
@@ -371,19 +407,31 @@ class World:
             cap_rows(tasks, self.scenario.print_caps),
             self.job_rows(),
             tasks,
+            self.attempt_rows(),
         )
+        end = min(float(self.env.now), self.scenario.duration_s)
+        states = self.activity.rows(end)
+        write_rows(out / STATES_CSV, ("robot", "state", "seconds", "share"), states)
+        write_rows(out / WIP_CSV, ("t", "queue", "wip"), wip_rows(self.recorder.events))
+        if self.energy is not None:
+            self.energy.write(out)
 
-    def task_rows(self) -> list[tuple[str, str, str, float, float]]:
-        """Every print task that started, as ``tasks.csv`` rows (see `summary.task_rows`)."""
+    def task_rows(self) -> list[tuple[str, str, str, float, float, int]]:
+        """Every print task that started, in every attempt, as ``tasks.csv`` rows (see
+        `summary.task_rows`)."""
         return task_rows(self.jobs)
 
-    def cap_rows(self) -> list[tuple[str, str, str, float, float, float]]:
+    def cap_rows(self) -> list[tuple[str, str, str, float, float, float, int]]:
         """Every print cap a robot was under, as ``caps.csv`` rows (see `summary.cap_rows`)."""
         return cap_rows(self.task_rows(), self.scenario.print_caps)
 
     def job_rows(self) -> list[dict[str, Any]]:
         """One row per job for ``jobs.csv`` (see `summary.job_rows`)."""
         return job_rows(self.jobs, self.env.now)
+
+    def attempt_rows(self) -> list[dict[str, Any]]:
+        """One row per attempt at a job for ``attempts.csv`` (see `summary.attempt_rows`)."""
+        return attempt_rows(self.jobs, self.env.now)
 
     @property
     def stats(self) -> dict[str, int]:

@@ -2,11 +2,13 @@
 
 `contracts` (observations, commands, jobs, bids and the `Controller` and `Dispatcher` bases),
 `robot` (the double integrator every controller plans for), `bidding` (a robot's default bid),
+`charging` (the charging-policy contract: `ChargingPolicy`, `BatteryStatus`, `Charger`),
 `discovery` (entry points). The conformance kit, `fleet.plugins.testing`, is a room of its own
 above the bus: import it by name. This room imports only `fleet.errors`, and `fleet.paths` and
 `fleet.floor` for type names.
 """
 
+from fleet.plugins.charging import CHARGING_GROUP, BatteryStatus, Charger, ChargingPolicy
 from fleet.plugins.contracts import (
     CAP_LOOKAHEAD_S,
     CONTROLLER_GROUP,
@@ -33,6 +35,7 @@ from fleet.plugins.discovery import (
     PluginInfo,
     PluginWarning,
     discover,
+    load_charging_policy,
     load_controller,
     load_dispatcher,
 )
@@ -63,4 +66,9 @@ __all__ = [
     "discover",
     "load_controller",
     "load_dispatcher",
+    "load_charging_policy",
+    "CHARGING_GROUP",
+    "BatteryStatus",
+    "Charger",
+    "ChargingPolicy",
 ]

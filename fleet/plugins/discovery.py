@@ -1,4 +1,4 @@
-"""Discovery: the controllers and dispatchers registered through entry points.
+"""Discovery: the controllers, dispatchers and charging policies registered through entry points.
 
 A plugin is a class registered under an entry-point group in its distribution's
 ``pyproject.toml``; the built-in ones in ``plugins/`` register exactly the same way::
@@ -9,8 +9,11 @@ A plugin is a class registered under an entry-point group in its distribution's
     [project.entry-points."fleet.dispatchers"]
     my_dispatcher = "my_package.module:MyDispatcher"
 
+    [project.entry-points."fleet.charging"]
+    my_policy = "my_package.module:MyChargingPolicy"
+
 The class is instantiated with the keyword options from the scenario
-(``[controller.options]`` / ``[dispatcher.options]``).
+(``[controller.options]`` / ``[dispatcher.options]`` / ``[charging.options]``).
 """
 
 from __future__ import annotations
@@ -25,15 +28,24 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from fleet.errors import PluginError
+from fleet.plugins.charging import CHARGING_GROUP, ChargingPolicy
 from fleet.plugins.contracts import CONTROLLER_GROUP, DISPATCHER_GROUP, Controller, Dispatcher
 
-__all__ = ["PluginWarning", "PluginInfo", "discover", "load_controller", "load_dispatcher"]
+__all__ = [
+    "PluginWarning",
+    "PluginInfo",
+    "discover",
+    "load_controller",
+    "load_dispatcher",
+    "load_charging_policy",
+]
 
 # Each kind: its entry-point group, the base class a plugin must subclass, and the one method it
 # must implement. Validation checks exactly these, so the error can name the broken one.
 _KINDS: dict[str, tuple[str, type, str]] = {
     "controller": (CONTROLLER_GROUP, Controller, "compute"),
     "dispatcher": (DISPATCHER_GROUP, Dispatcher, "assign"),
+    "charging": (CHARGING_GROUP, ChargingPolicy, "go_charge"),
 }
 
 # Per-process cache of `discover()`: kind -> plugins in entry-point order. None until first use.
@@ -55,7 +67,7 @@ class PluginInfo:
     name:
         Entry-point name: what a scenario writes in ``[controller] name = ...``.
     kind:
-        ``"controller"`` or ``"dispatcher"``.
+        ``"controller"``, ``"dispatcher"`` or ``"charging"`` (a charging policy).
     group:
         The entry-point group it was registered under (`CONTROLLER_GROUP`, `DISPATCHER_GROUP`).
     value:
@@ -93,7 +105,7 @@ class PluginInfo:
 
 
 def discover(kind: str | None = None, *, refresh: bool = False) -> list[PluginInfo]:
-    """Every registered controller and/or dispatcher plugin, usable or broken.
+    """Every registered plugin (of `kind`, or of every kind), usable or broken.
 
     The entry points are read, imported and validated once per process; pass ``refresh=True``
     to read them again (after installing a plugin at runtime, or in tests). A broken plugin is
@@ -104,7 +116,7 @@ def discover(kind: str | None = None, *, refresh: bool = False) -> list[PluginIn
     Parameters
     ----------
     kind:
-        ``"controller"``, ``"dispatcher"`` or None for both.
+        ``"controller"``, ``"dispatcher"``, ``"charging"`` or None for every kind.
     refresh:
         Read the entry points again instead of using the per-process cache.
 
@@ -165,7 +177,18 @@ def load_dispatcher(name: str, options: Mapping[str, Any] | None = None) -> Disp
     return _load("dispatcher", name, options)  # type: ignore[return-value]
 
 
-def _load(kind: str, name: str, options: Mapping[str, Any] | None) -> Controller | Dispatcher:
+def load_charging_policy(name: str, options: Mapping[str, Any] | None = None) -> ChargingPolicy:
+    """Instantiate the charging-policy plugin registered as `name` with keyword `options`.
+
+    Raises
+    ------
+    PluginError
+        As for `load_controller`.
+    """
+    return _load("charging", name, options)  # type: ignore[return-value]
+
+
+def _load(kind: str, name: str, options: Mapping[str, Any] | None) -> Any:
     found = [info for info in discover(kind) if info.name == name]
     usable = [info for info in found if info.ok]
     if not usable:

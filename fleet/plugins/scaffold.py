@@ -3,7 +3,8 @@
 `write_plugin` writes a distribution that installs as it stands (``pip install -e``): a
 ``pyproject.toml`` with its build-system table and the entry point, a package under ``src/``
 with a minimal plugin that works (a controller that follows the path layer's reference, or a
-dispatcher that gives the oldest job to the idle robot with the smallest id), and a test that
+dispatcher that gives the oldest job to the idle robot with the smallest id, or a charging
+policy that charges below a quarter to the nearest free charger), and a test that
 runs the conformance kit (`fleet.plugins.testing`) on it and checks that discovery finds it.
 """
 
@@ -18,7 +19,11 @@ from fleet.errors import InputError
 __all__ = ["KINDS", "NAME_RULE", "NewPlugin", "write_plugin"]
 
 #: Plugin kinds a package can be made for, with their entry-point groups.
-KINDS: dict[str, str] = {"controller": "fleet.controllers", "dispatcher": "fleet.dispatchers"}
+KINDS: dict[str, str] = {
+    "controller": "fleet.controllers",
+    "dispatcher": "fleet.dispatchers",
+    "charging": "fleet.charging",
+}
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}$")
 NAME_RULE = (
@@ -65,7 +70,7 @@ def write_plugin(name: str, kind: str, parent: Path) -> NewPlugin:
             "remove it",
         )
     cls = "".join(part.capitalize() for part in name.split("_") if part) or "Plugin"
-    module = "dispatch" if kind == "dispatcher" else "control"
+    module = {"controller": "control", "dispatcher": "dispatch", "charging": "policy"}[kind]
     fields = {
         "name": name,
         "dist": name.replace("_", "-"),
@@ -78,8 +83,8 @@ def write_plugin(name: str, kind: str, parent: Path) -> NewPlugin:
         "pyproject.toml": _PYPROJECT,
         "README.md": _README,
         f"src/{name}/__init__.py": _INIT,
-        f"src/{name}/{module}.py": _CONTROLLER if kind == "controller" else _DISPATCHER,
-        f"tests/test_{name}.py": _TEST_CONTROLLER if kind == "controller" else _TEST_DISPATCHER,
+        f"src/{name}/{module}.py": _PLUGIN[kind],
+        f"tests/test_{name}.py": _TEST[kind],
     }
     written = []
     for rel, template in files.items():
@@ -241,3 +246,60 @@ def test_{name}_is_found_by_its_entry_point():
     assert info.error is None, info.error
     assert isinstance(load_dispatcher("{name}"), {cls})
 '''
+
+_CHARGING = '''\
+"""The {name} charging policy: below a quarter, to the nearest free charger, back at 90 %."""
+
+from __future__ import annotations
+
+import math
+
+from fleet.plugins import BatteryStatus, ChargingPolicy
+
+
+class {cls}(ChargingPolicy):
+    """Below `low` (a share of the capacity) go to the nearest free charger (the nearest one
+    when all are taken) after the current job, and charge to `high`, taking no jobs meanwhile.
+
+    A start for your own policy: the engine asks it about each robot at each of its ticks.
+    """
+
+    def __init__(self, low: float = 0.25, high: float = 0.9) -> None:
+        super().__init__()
+        self.low, self.high = low, high
+
+    def go_charge(self, status: BatteryStatus) -> str | None:
+        if status.charge >= self.low or not status.chargers:
+            return None
+        free = [c for c in status.chargers if c.occupant in (None, status.robot)]
+        nearest = min(
+            free or status.chargers, key=lambda c: math.hypot(c.x - status.x, c.y - status.y)
+        )
+        return nearest.name
+
+    def leave(self, status: BatteryStatus) -> bool:
+        return status.charge >= self.high
+'''
+
+_TEST_CHARGING = '''\
+"""{name} meets the charging-policy contract, and mambot-fleet finds it through its entry point."""
+
+from fleet.plugins import discover, load_charging_policy
+from fleet.plugins.testing import check_charging_policy
+
+from {name} import {cls}
+
+
+def test_{name}_conforms():
+    check_charging_policy({cls})  # names given chargers, sends flat robots, lets full ones go
+
+
+def test_{name}_is_found_by_its_entry_point():
+    info = {{p.name: p for p in discover("charging")}}["{name}"]
+    assert info.error is None, info.error
+    assert isinstance(load_charging_policy("{name}"), {cls})
+'''
+
+#: Each kind's plugin module and test templates.
+_PLUGIN = {"controller": _CONTROLLER, "dispatcher": _DISPATCHER, "charging": _CHARGING}
+_TEST = {"controller": _TEST_CONTROLLER, "dispatcher": _TEST_DISPATCHER, "charging": _TEST_CHARGING}

@@ -1,11 +1,13 @@
-"""Conformance kit for plugin authors: run a controller or dispatcher for real, check its contract.
+"""Conformance kit for plugin authors: run a controller, dispatcher or charging policy for real,
+check its contract.
 
 `check_controller` drives a plugin in closed loop on the paper's discrete double integrator
 over a small built-in floor (`conformance_floor`: a 20 x 10 m hall with a press in the middle and
-a 0.4 m/s zone) with the real path layer, and `check_dispatcher` feeds a dispatcher seeded
-random fleets on the same floor. Each raises `ConformanceError` (an `AssertionError`, so pytest
+a 0.4 m/s zone) with the real path layer, `check_dispatcher` feeds a dispatcher seeded
+random fleets on the same floor, and `check_charging_policy` asks a charging policy about
+seeded random battery states there. Each raises `ConformanceError` (an `AssertionError`, so pytest
 reports it as an ordinary failure) whose message names the broken rule (`CONTROLLER_RULES`,
-`DISPATCHER_RULES`), the plugin, and the tick or case where it broke.
+`DISPATCHER_RULES`, `CHARGING_RULES`), the plugin, and the tick or case where it broke.
 
 Use it from your plugin's own test suite, next to a check that your entry point is found::
 
@@ -51,6 +53,9 @@ from fleet.floor import Floor, FloorSpec, Obstacle, SpeedZone, Station
 from fleet.paths import PathPlanner
 from fleet.plugins import (
     Assignment,
+    BatteryStatus,
+    Charger,
+    ChargingPolicy,
     Command,
     Controller,
     ControllerContext,
@@ -72,6 +77,8 @@ __all__ = [
     "conformance_floor",
     "check_controller",
     "check_dispatcher",
+    "CHARGING_RULES",
+    "check_charging_policy",
 ]
 
 #: The rules `check_controller` enforces, by name (the name appears in every failure).
@@ -107,6 +114,17 @@ DISPATCHER_RULES: dict[str, str] = {
     "deterministic": "two fresh instances given the same cases in the same order return equal "
     "assignments",
     "no-mutation": "assign leaves its job list, robot list and context.extra unchanged",
+}
+
+#: The rules `check_charging_policy` enforces, by name.
+CHARGING_RULES: dict[str, str] = {
+    "instantiate": "the factory accepts the options and returns a fleet.plugins.ChargingPolicy",
+    "returns": "go_charge returns a charger name or None; leave and takes_jobs return a bool",
+    "known-charger": "go_charge names only chargers it was given",
+    "no-flat-battery": "a robot with no charge left and no job is sent to a charger",
+    "full-leaves": "a robot standing at its charger with a full battery leaves it",
+    "deterministic": "two fresh instances given the same statuses in the same order answer alike",
+    "no-mutation": "the statuses are left unchanged (they are frozen; the chargers too)",
 }
 
 #: The robot the controller check drives: the project's default robot.
@@ -632,6 +650,124 @@ def _free_point(rng: np.random.Generator, floor: Floor) -> tuple[float, float]:
 
 def _fail_dispatcher(label: str, rule: str, detail: str) -> NoReturn:
     raise ConformanceError(label, rule, DISPATCHER_RULES, detail)
+
+
+# --- charging policies ------------------------------------------------------------------------
+
+
+def check_charging_policy(
+    factory: Callable[..., ChargingPolicy], *, options: Mapping[str, Any] | None = None
+) -> None:
+    """Check a charging-policy plugin against its contract on seeded random battery states.
+
+    Each case is a robot's `BatteryStatus` on `conformance_floor` with two or three chargers
+    (some taken by other robots): fixed ones (flat and idle; full at its charger; every charger
+    taken) and 60 random ones from a fixed seed, asked `go_charge` (robots not at a charger) or
+    `leave` and `takes_jobs` (robots at theirs). Every answer is checked against
+    `CHARGING_RULES`; then a second fresh instance is given the same cases in the same order
+    (a policy may keep state per robot) and must answer alike.
+
+    Raises
+    ------
+    ConformanceError
+        At the first broken rule, naming it and the case.
+    """
+    label = _label(factory)
+    cases = _charging_cases()
+    first = _instantiate(factory, options, ChargingPolicy, label, CHARGING_RULES)
+    answers = [_ask_policy(first, name, status, label) for name, status in cases]
+    second = _instantiate(factory, options, ChargingPolicy, label, CHARGING_RULES)
+    for (name, status), want in zip(cases, answers, strict=True):
+        got = _ask_policy(second, name, status, label)
+        if got != want:
+            _fail_charging(
+                label,
+                "deterministic",
+                f"case {name!r}: the first instance answered {want!r}, a second fresh one "
+                f"given the same cases in the same order {got!r}",
+            )
+
+
+def _ask_policy(
+    policy: ChargingPolicy, name: str, status: BatteryStatus, label: str
+) -> tuple[object, ...]:
+    where = f"case {name!r} ({status!r})"
+    copy = replace(status)
+    try:
+        if status.charger is None:
+            answer: tuple[object, ...] = (policy.go_charge(status),)
+        else:
+            answer = (policy.leave(status), policy.takes_jobs(status))
+    except Exception as exc:
+        _fail_charging(label, "returns", f"{where}: raised {type(exc).__name__}: {exc}")
+    if status != copy:
+        _fail_charging(label, "no-mutation", f"{where}: the status was changed")
+    if status.charger is None:
+        choice = answer[0]
+        if choice is not None and not isinstance(choice, str):
+            _fail_charging(label, "returns", f"{where}: go_charge returned {choice!r}")
+        if choice is not None and choice not in {c.name for c in status.chargers}:
+            _fail_charging(label, "known-charger", f"{where}: go_charge named {choice!r}")
+        if choice is None and status.charge <= 0.0 and not status.has_job:
+            _fail_charging(label, "no-flat-battery", f"{where}: go_charge returned None")
+    else:
+        if not all(isinstance(a, bool) for a in answer):
+            _fail_charging(label, "returns", f"{where}: leave, takes_jobs returned {answer!r}")
+        if status.charge >= 1.0 and status.charging and answer[0] is not True:
+            _fail_charging(label, "full-leaves", f"{where}: leave returned {answer[0]!r}")
+    return answer
+
+
+def _charging_cases() -> list[tuple[str, BatteryStatus]]:
+    """Fixed cases first (the easy ways to get it wrong), then seeded random states."""
+    rng = np.random.default_rng(20261127)
+    floor = conformance_floor()
+    spots = ((1.0, 1.0), (19.0, 9.0), (1.0, 9.0))
+
+    def status(robot: str, x: float, y: float, charge: float, **kw: Any) -> BatteryStatus:
+        kw.setdefault("chargers", tuple(Charger(f"c{i}", *p) for i, p in enumerate(spots[:2])))
+        kw.setdefault("has_job", False)
+        kw.setdefault("charger", None)
+        kw.setdefault("charging", False)
+        return BatteryStatus(
+            robot, kw.pop("t", 100.0), x, y, charge, 200.0, **kw, drive_wh_per_m=0.05,
+            print_w=60.0, idle_w=5.0, charge_w=200.0,
+        )  # fmt: skip
+
+    taken = tuple(Charger(f"c{i}", *p, occupant=f"other{i}") for i, p in enumerate(spots))
+    cases = [
+        ("flat and idle", status("r1", 2.0, 5.0, 0.0)),
+        ("flat and idle, every charger taken", status("r1", 2.0, 5.0, 0.0, chargers=taken)),
+        ("low with a job", status("r1", 17.0, 8.0, 0.05, has_job=True)),
+        ("full at its charger", status("r1", *spots[0], 1.0, charger="c0", charging=True)),
+        ("full, idle, next to a charger", status("r1", 1.5, 1.0, 1.0)),
+    ]
+    for n in range(60):
+        x, y = _free_point(rng, floor)
+        chargers = tuple(
+            Charger(f"c{i}", *p, occupant=None if rng.random() < 0.6 else f"other{i}")
+            for i, p in enumerate(spots[: int(rng.integers(1, 4))])
+        )
+        robot = f"r{int(rng.integers(1, 4))}"
+        charge = round(float(rng.random()), 3)
+        at = int(rng.integers(0, len(chargers))) if rng.random() < 0.4 else None
+        if at is not None:
+            chargers = tuple(
+                replace(c, occupant=robot) if i == at else c for i, c in enumerate(chargers)
+            )
+        kwargs: dict[str, Any] = {
+            "chargers": chargers,
+            "has_job": at is None and bool(rng.random() < 0.4),
+            "charger": None if at is None else chargers[at].name,
+            "charging": at is not None and bool(rng.random() < 0.8),
+            "t": 100.0 + 10.0 * n,
+        }
+        cases.append((f"random #{n}", status(robot, x, y, charge, **kwargs)))
+    return cases
+
+
+def _fail_charging(label: str, rule: str, detail: str) -> NoReturn:
+    raise ConformanceError(label, rule, CHARGING_RULES, detail)
 
 
 # --- shared ---------------------------------------------------------------------------------------

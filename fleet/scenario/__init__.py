@@ -9,6 +9,7 @@ never the file.
 
 from fleet.scenario.reader import (
     REPO_ROOT,
+    BatteryConfig,
     BreakdownsConfig,
     BusConfig,
     JobsConfig,
@@ -19,10 +20,12 @@ from fleet.scenario.reader import (
     Scenario,
     ScriptedJob,
     check_fleet,
+    check_warmup,
     default_scenario,
     load_scenario,
     parse_latency,
     parse_scenario,
+    parse_with_settings,
 )
 from fleet.scenario.spec import ScenarioFile
 
@@ -32,14 +35,17 @@ __all__ = [
     "ScriptedJob",
     "JobsConfig",
     "BusConfig",
+    "BatteryConfig",
     "QualityConfig",
     "BreakdownsConfig",
     "Scenario",
     "Latency",
     "parse_latency",
     "check_fleet",
+    "check_warmup",
     "load_scenario",
     "parse_scenario",
+    "parse_with_settings",
     "default_scenario",
     "REPO_ROOT",
     "ScenarioFile",

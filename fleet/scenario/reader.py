@@ -10,6 +10,7 @@ field and the value. Command-line options override the file through `Scenario.ov
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 import tomllib
@@ -17,6 +18,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
+
+import msgspec
 
 from fleet.errors import ScenarioError
 from fleet.printing import PrintSchedule, PrintTask
@@ -43,6 +46,7 @@ __all__ = [
     "ScriptedJob",
     "JobsConfig",
     "BusConfig",
+    "BatteryConfig",
     "QualityConfig",
     "BreakdownsConfig",
     "Scenario",
@@ -50,6 +54,7 @@ __all__ = [
     "parse_latency",
     "load_scenario",
     "parse_scenario",
+    "parse_with_settings",
     "default_scenario",
     "REPO_ROOT",
 ]
@@ -136,6 +141,23 @@ class BusConfig:
     lost_after_s: float = 3.0
     #: Longest message (bytes) the bus takes in or sends (`fleet.bus.schema.MAX_MESSAGE_BYTES`).
     max_message_bytes: int = 2 * 1024 * 1024
+
+
+@dataclass(frozen=True)
+class BatteryConfig:
+    """Every robot's battery (``[battery]``; see `fleet.engine.energy`).
+
+    The battery draws `drive_wh_per_m` per metre driven, `print_w` while printing and `idle_w`
+    at all times; a charger fills it at `charge_w`. It starts at `initial_share` of
+    `capacity_wh`.
+    """
+
+    capacity_wh: float = 500.0
+    drive_wh_per_m: float = 0.05
+    print_w: float = 60.0
+    idle_w: float = 0.0
+    initial_share: float = 1.0
+    charge_w: float = 300.0
 
 
 @dataclass(frozen=True)
@@ -232,6 +254,11 @@ class Scenario:
     #: Overrides of the G-code feature -> task kind table.
     classify: dict[str, str] = field(default_factory=dict)
     quality: QualityConfig = field(default_factory=QualityConfig)
+    #: The TOML tables the scenario was read from (empty for one built field by field) and the
+    #: file their relative paths are relative to: `fleet.api.change` writes dotted settings
+    #: over them and validates them again. Not compared: equal scenarios run alike.
+    tables: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    origin: Path | None = field(default=None, compare=False, repr=False)
     #: When set, every rough area of the map is also a speed zone with this limit (m/s): the
     #: paper's "varying" strategy, slow over bumps and rough floor.
     rough_v_max: float | None = None
@@ -244,6 +271,13 @@ class Scenario:
     #: Random breakdowns of robots (``[breakdowns]``; None: none). Drawn from streams of their
     #: own, so switching them on changes no job arrival (`fleet.engine.breakdowns`).
     breakdowns: BreakdownsConfig | None = None
+    #: Start-up transient (s) the KPIs leave out (``[scenario] warmup_s``): throughput, lead
+    #: times, waits and state shares are measured over [warmup_s, the run's end).
+    warmup_s: float = 0.0
+    #: Robots' batteries (``[battery]``); None: they never run out (no chargers are used).
+    battery: BatteryConfig | None = None
+    #: The charging policy (``[charging]``), used only with `battery`.
+    charging: PluginChoice = field(default_factory=lambda: PluginChoice("threshold"))
 
     def print_schedule(self, job: ScriptedJob) -> PrintSchedule | None:
         """The print schedule of a scripted job under this scenario's caps (None: no print)."""
@@ -343,12 +377,27 @@ def load_scenario(
         raise ScenarioError(src, "(file)", src, f"cannot read the scenario file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
+    return parse_with_settings(raw, path, settings, settings_source=settings_source)
+
+
+def parse_with_settings(
+    raw: dict[str, Any],
+    path: str | Path,
+    settings: Mapping[str, Any] | None,
+    *,
+    source: str | None = None,
+    settings_source: str = "--set",
+) -> Scenario:
+    """`parse_scenario` of `raw` (left as it is) with `settings` written over it by dotted key,
+    as `load_scenario` takes them; an error a setting causes names `settings_source`, the key
+    and the value. `fleet.api.change` applies settings to a scenario's tables this way."""
     if not settings:
-        return parse_scenario(raw, path)
+        return parse_scenario(raw, path, source=source)
+    raw = copy.deepcopy(raw)
     for key, value in settings.items():
         _put_setting(raw, key, value, settings_source)
     try:
-        return parse_scenario(raw, path)
+        return parse_scenario(raw, path, source=source)
     except ScenarioError as exc:
         if not any(_within(exc.field, key) for key in settings):
             raise
@@ -420,9 +469,11 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
             bus.lost_after_s,
             f"must not exceed bus.timeout_s ({bus.timeout_s:g})",
         )
-    return Scenario(
+    scenario = Scenario(
         name=path.stem if sc.name is None else sc.name,
         source=src,
+        tables=copy.deepcopy(raw),
+        origin=path,
         map=map_path,
         duration_s=sc.duration_s,
         seed=sc.seed,
@@ -456,8 +507,15 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         quality=quality,
         rough_v_max=file.floor.rough_v_max,
         latency=None if sc.latency == "none" else sc.latency,
+        warmup_s=sc.warmup_s,
+        battery=None
+        if file.battery is None
+        else BatteryConfig(**msgspec.structs.asdict(file.battery)),
+        charging=PluginChoice(file.charging.name, file.charging.options),
         breakdowns=_breakdowns(src, file.breakdowns, len(groups), raw.get("breakdowns")),
     )
+    check_warmup(scenario)
+    return scenario
 
 
 def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
@@ -512,6 +570,22 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
                 f"wider than the map's floor.clearance ({clearance:g} m), the room the map keeps "
                 "round walls and obstacles: raise the clearance in the map or use a smaller radius",
             )
+
+
+def check_warmup(scenario: Scenario) -> None:
+    """`Scenario.warmup_s` is a number >= 0 and shorter than the run (`duration_s`, however it
+    was set: file, ``--duration`` or code); `ScenarioError` naming the file and field otherwise."""
+    w = scenario.warmup_s
+    if isinstance(w, bool) or not isinstance(w, int | float) or not (0 <= w < math.inf):
+        raise ScenarioError(scenario.source, "scenario.warmup_s", w, "must be a number >= 0")
+    if w >= scenario.duration_s:
+        raise ScenarioError(
+            scenario.source,
+            "scenario.warmup_s",
+            w,
+            f"must be less than the run's duration_s ({scenario.duration_s:g} s): the KPIs are "
+            "measured after the warm-up",
+        )
 
 
 def parse_latency(src: str, fld: str, value: Any, *, parse_text: bool = False) -> Latency:

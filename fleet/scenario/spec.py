@@ -39,6 +39,8 @@ __all__ = [
     "BusTable",
     "BreakdownsTable",
     "BreakdownGroupTable",
+    "BatteryTable",
+    "ChargingTable",
     "TaskKind",
     "Positive",
     "NonNegative",
@@ -114,6 +116,13 @@ class ScenarioTable(_Table, kw_only=True):
         Meta(description="No progress for this long (s) with robots close by: a deadlock; 0: off."),
     ] = 30.0
     latency: _Latency = "none"
+    warmup_s: Annotated[
+        NonNegative,
+        Meta(
+            description="KPIs (throughput, lead times, waits, state shares) leave out the "
+            "start-up [0, warmup_s); below duration_s."
+        ),
+    ] = 0.0
 
 
 class RobotsTable(_Table, kw_only=True):
@@ -332,6 +341,42 @@ class BreakdownsTable(_Table, kw_only=True):
     ] = []
 
 
+class BatteryTable(_Table, kw_only=True):
+    """[battery]: every robot's battery and its draw (absent: robots never run out)."""
+
+    capacity_wh: Annotated[Positive, Meta(description="Usable capacity (Wh).")] = 500.0
+    drive_wh_per_m: Annotated[NonNegative, Meta(description="Energy per metre driven (Wh/m).")] = (
+        0.05
+    )
+    print_w: Annotated[NonNegative, Meta(description="Draw while printing (W = Wh per hour).")] = (
+        60.0
+    )
+    idle_w: Annotated[
+        NonNegative, Meta(description="Draw at all times, moving or not (W; electronics).")
+    ] = 0.0
+    initial_share: Annotated[
+        float,
+        Meta(
+            gt=0,
+            le=1,
+            description="Charge at the start, a share of the capacity (0 < share <= 1).",
+            extra={"rule": "must be a share of the capacity, > 0 and <= 1"},
+        ),
+    ] = 1.0
+    charge_w: Annotated[
+        Positive, Meta(description="Rate at which a charger fills the battery (W = Wh per hour).")
+    ] = 300.0
+
+
+class ChargingTable(_Table, kw_only=True):
+    """[charging]: the charging-policy plugin and its options (used with [battery])."""
+
+    name: Annotated[
+        str, Meta(description="A charging-policy plugin (`fleet plugins`): threshold, opportunity.")
+    ] = "threshold"
+    options: Annotated[dict[str, Any], Meta(description="Keyword arguments for the plugin.")] = {}
+
+
 class ScenarioFile(_Table, kw_only=True):
     """A scenario file: which floor, which fleet, which plugins, which jobs, for how long."""
 
@@ -355,6 +400,10 @@ class ScenarioFile(_Table, kw_only=True):
     quality: QualityTable = msgspec.field(default_factory=QualityTable)
     floor: FloorTable = msgspec.field(default_factory=FloorTable)
     bus: BusTable = msgspec.field(default_factory=BusTable)
+    battery: Annotated[
+        BatteryTable | None, Meta(description="Robots' batteries; absent: they never run out.")
+    ] = None
+    charging: ChargingTable = msgspec.field(default_factory=ChargingTable)
     breakdowns: Annotated[
         BreakdownsTable | None,
         Meta(description="Random breakdowns and repairs of robots (absent: none)."),

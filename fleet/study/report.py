@@ -5,15 +5,17 @@ Everything is read from the study directory `fleet sweep` wrote (``study.json``,
 `write_report` writes, into the output directory:
 
 - ``throughput.png``: good parts per hour against the arrival rate, one line per series, one
-  panel per fleet size; the mean across seeds with its 95 % Student t interval, and the offered
-  rate as a dashed ceiling;
+  panel per fleet size; the mean across seeds with its 95 % Student t interval (cut at zero),
+  and the offered rate as a dashed ceiling;
 - ``lead_time.png``: box plots of lead times (``delivered_s - released_s`` of every delivered
   job in the runs' ``jobs.csv``), per series and arrival rate, one panel per fleet size;
 - ``defects.png``: the defect rate, (defective + failed prints) / judged prints pooled over
   seeds, per series and arrival rate, one panel per fleet size;
 - ``report.md``: what was run (failed runs listed with their errors), a table of good parts
-  per hour per fleet size with the leader of every setting and whether it is clearly ahead,
-  defect rates, median lead times, safety violations, and the figures linked.
+  per hour per fleet size with the leader of every setting and whether it is clearly ahead, the
+  leader's paired differences to the other series with the method named, which intervals need
+  more seeds for a target half-width (and how many), defect rates, median lead times, safety
+  violations, and the figures linked.
 
 How the study's axes are used. The conventional axes have roles: ``controller`` names the
 series (what is compared), ``rate_per_h`` is the x axis, ``robots`` the panels. Any other axis
@@ -23,11 +25,18 @@ with more than one label splits the series further: a series is named
 only listed. Without a rate axis, throughput and defects are grouped bars (one group), without a
 robots axis there is one panel.
 
-Statistics use the runs whose status is ``"ok"``; failed runs are listed and left out. Intervals
-are two-sided 95 % Student t intervals of the mean across seeds (none for a single seed). A leader
-is *clearly ahead* when its interval lies entirely above every other series'; overlapping intervals
-are reported as a tie (an interval of zero width, all seeds equal, compares as its mean). This is
-a conservative test, not a significance test of the difference.
+Statistics use the runs whose status is ``"ok"``; failed runs are listed and left out; the
+computations are `fleet.study.stats`' (quantiles from scipy's t distribution). A series' mean across
+seeds has a two-sided 95 % Student t interval with n-1 degrees of freedom, cut at zero (good
+parts per hour cannot be negative); a single seed has none. In each setting the series with the
+highest mean, the leader, is compared with every other series by their difference: a sweep runs
+every grid point on the same seeds and a seed alone draws the job arrivals (common random
+numbers), so where both series' ok runs have the same seeds the difference is paired seed by
+seed (t on the per-seed differences, n-1 df); where they differ (a failed run) Welch's unpaired
+t with Welch-Satterthwaite's df is used instead, and the report names which. The leader is
+*clearly ahead* when the interval of its difference to every other series lies above zero; else
+it is a tie. For a target half-width (`HalfWidth`, by default 5 % of the mean) the report says
+which intervals are wider and how many seeds they need (`fleet.study.stats.replications_needed`).
 
 Figures are drawn on `matplotlib.figure.Figure` with an Agg canvas, never pyplot, as in
 `fleet.view.figures`.
@@ -36,10 +45,10 @@ Figures are drawn on `matplotlib.figure.Figure` with an Agg canvas, never pyplot
 from __future__ import annotations
 
 import csv
-import enum
+import hashlib
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -53,6 +62,19 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from fleet.errors import InputError
+from fleet.study.stats import (
+    CONFIDENCE,
+    NON_NEGATIVE,
+    Difference,
+    Interval,
+    Method,
+    Verdict,
+    compare,
+    mean_ci,
+    replications_needed,
+    t_quantile,
+)
+from fleet.study.warmup import warmup_lines
 from fleet.view.figures import csv_number
 
 __all__ = [
@@ -70,11 +92,15 @@ __all__ = [
     "Interval",
     "Verdict",
     "Ranking",
+    "HalfWidth",
+    "DEFAULT_HALF_WIDTH",
+    "Advice",
     "Summary",
     "ReportResult",
     "t_quantile",
     "mean_ci",
-    "rank",
+    "compare",
+    "method_summary",
     "load_study",
     "load_jobs",
     "summarise",
@@ -109,138 +135,109 @@ _OUTCOMES = ("good", "defective", "failed")
 _DPI = 150
 _NO_DATA = "–"
 
-# Two-sided 95 % quantiles of Student's t, t(0.975, df) for df = 1..30 (standard tables; scipy
-# is not a dependency). Above 30 degrees of freedom the normal quantile 1.96 is used: it is at
-# most 4 % below the t quantile there (t(0.975, 31) = 2.040), so intervals of studies with more
-# than 31 seeds are slightly too narrow.
-_T975 = (
-    12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622, 2.2281,
-    2.2010, 2.1788, 2.1604, 2.1448, 2.1314, 2.1199, 2.1098, 2.1009, 2.0930, 2.0860,
-    2.0796, 2.0739, 2.0687, 2.0639, 2.0595, 2.0555, 2.0518, 2.0484, 2.0452, 2.0423,
-)  # fmt: skip
-_Z975 = 1.96
-
-
-# -- statistics -------------------------------------------------------------------------------
-def t_quantile(df: int) -> float:
-    """The two-sided 95 % Student t quantile ``t(0.975, df)``.
-
-    Exact to four decimals for ``df <= 30``; 1.96 (the normal quantile) above.
-
-    Raises
-    ------
-    ValueError
-        `df` is not a positive integer.
-    """
-    if isinstance(df, bool) or not isinstance(df, int) or df < 1:
-        raise ValueError(f"degrees of freedom must be a positive integer, got {df!r}")
-    return _T975[df - 1] if df <= len(_T975) else _Z975
-
 
 @dataclass(frozen=True)
-class Interval:
-    """A mean across seeds with its 95 % confidence interval.
+class HalfWidth:
+    """The half-width the report asks of an interval of good parts per hour, to say how many
+    seeds it needs (`fleet report --half-width`).
 
     Attributes
     ----------
-    mean:
-        The sample mean.
-    half_width:
-        ``t(0.975, n-1) * s / sqrt(n)``, or None for a single value (no interval).
-    n:
-        How many values (seeds).
+    value:
+        A share of the mean (``relative``: 0.05 is 5 % of the mean) or good parts per hour.
+    relative:
+        Whether `value` is a share of the mean. A difference's target is the same share of the
+        leader's mean.
     """
 
-    mean: float
-    half_width: float | None
-    n: int
+    value: float
+    relative: bool = True
 
-    @property
-    def low(self) -> float:
-        """Lower end of the interval (the mean itself when there is no interval)."""
-        return self.mean - (self.half_width or 0.0)
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.value) and self.value > 0):
+            raise ValueError(f"a half-width must be a positive number, got {self.value!r}")
 
-    @property
-    def high(self) -> float:
-        """Upper end of the interval (the mean itself when there is no interval)."""
-        return self.mean + (self.half_width or 0.0)
+    def of(self, mean: float) -> float:
+        """The target half-width for an interval about `mean`."""
+        return self.value * abs(mean) if self.relative else self.value
 
     def text(self) -> str:
-        """``"mean ± half-width (n=…)"`` with two decimals, as the report's tables show it."""
-        hw = "" if self.half_width is None else f" ± {self.half_width:.2f}"
-        return f"{self.mean:.2f}{hw} (n={self.n})"
+        """``"5 % of the mean"`` or ``"0.5 good parts/h"``."""
+        if self.relative:
+            return f"{100 * self.value:g} % of the mean"
+        return f"{self.value:g} good parts/h"
+
+    @classmethod
+    def parse(cls, text: str) -> HalfWidth:
+        """``"5%"`` (a share of the mean) or ``"0.5"`` (good parts per hour).
+
+        Raises
+        ------
+        ValueError
+            Not a positive number, with or without a trailing ``%``.
+        """
+        raw = text.strip()
+        relative = raw.endswith("%")
+        try:
+            value = float(raw[:-1] if relative else raw)
+            return cls(value / 100 if relative else value, relative)
+        except ValueError:
+            raise ValueError(
+                "must be a positive number of good parts/h (0.5) or a share of the mean (5%)"
+            ) from None
 
 
-def mean_ci(values: Iterable[float]) -> Interval:
-    """The mean of `values` with its two-sided 95 % Student t interval.
+#: What the report asks of an interval unless told: a half-width of 5 % of the mean.
+DEFAULT_HALF_WIDTH = HalfWidth(0.05)
 
-    Raises
-    ------
-    ValueError
-        `values` is empty.
+
+@dataclass(frozen=True)
+class Advice:
+    """Whether an interval (an arm's mean, or a difference to the leader) meets the target
+    half-width, and how many seeds it would need.
+
+    Attributes
+    ----------
+    panel, x:
+        The setting.
+    series:
+        The arm, or ``"<leader> − <other>"`` for a difference.
+    n:
+        Seeds now (pairs, for a paired difference).
+    half_width:
+        The interval's half-width now (None with one seed).
+    target:
+        The half-width asked for.
+    needed:
+        Seeds needed in all (`fleet.study.stats.replications_needed`); None when unknown (one
+        seed: no spread yet; a target of zero).
     """
-    a = np.asarray(list(values), dtype=float)
-    if a.size == 0:
-        raise ValueError("mean_ci needs at least one value")
-    mean = float(a.mean())
-    if a.size == 1:
-        return Interval(mean, None, 1)
-    s = float(a.std(ddof=1))
-    return Interval(mean, t_quantile(a.size - 1) * s / math.sqrt(a.size), int(a.size))
 
+    panel: str | None
+    x: str | None
+    series: str
+    n: int
+    half_width: float | None
+    target: float
+    needed: int | None
 
-class Verdict(enum.Enum):
-    """How the series with the highest mean in one setting compares with the runner-up."""
-
-    CLEAR = "clearly ahead"
-    """Its 95 % interval lies entirely above every other series'."""
-    TIE = "tie"
-    """The intervals overlap: the data do not separate the two."""
-    EQUAL = "equal means"
-    """The two highest means are equal: there is no leader."""
-    NO_INTERVAL = "no interval"
-    """The leader or the runner-up ran a single seed: there is no interval to compare."""
-    ALONE = "alone"
-    """Only one series has ok runs in this setting: nothing to compare."""
+    @property
+    def enough(self) -> bool:
+        """The interval already meets the target."""
+        return self.half_width is not None and self.half_width <= self.target
 
 
 @dataclass(frozen=True)
 class Ranking:
-    """The leader of one setting (fleet size, arrival rate) by mean good parts per hour."""
+    """The leader of one setting (fleet size, arrival rate) by mean good parts per hour, and its
+    difference to every other series (leader minus series, paired on common seeds)."""
 
     panel: str | None
     x: str | None
     leader: str
     runner_up: str | None
     verdict: Verdict
-
-
-def rank(intervals: Mapping[str, Interval]) -> tuple[str, str | None, Verdict]:
-    """Leader, runner-up and `Verdict` among series' intervals (equal means: first listed first).
-
-    The leader is `Verdict.CLEAR` when its interval lies above every other series' interval.
-
-    Raises
-    ------
-    ValueError
-        `intervals` is empty.
-    """
-    if not intervals:
-        raise ValueError("rank needs at least one series")
-    order = sorted(intervals, key=lambda s: -intervals[s].mean)  # stable: first listed first
-    leader = order[0]
-    if len(order) == 1:
-        return leader, None, Verdict.ALONE
-    runner = order[1]
-    a, b = intervals[leader], intervals[runner]
-    if a.mean == b.mean:
-        return leader, runner, Verdict.EQUAL
-    others = [intervals[s] for s in order[1:]]
-    if a.half_width is None or any(o.half_width is None for o in others):
-        return leader, runner, Verdict.NO_INTERVAL
-    # Clear only above every other series: one with a lower mean but a wide interval may still
-    # be the better one.
-    return leader, runner, Verdict.CLEAR if all(a.low > o.high for o in others) else Verdict.TIE
+    differences: Mapping[str, Difference] = field(default_factory=dict)
 
 
 # -- what a study directory holds -------------------------------------------------------------
@@ -272,11 +269,14 @@ class Run:
 
 @dataclass(frozen=True)
 class JobStats:
-    """What one run's ``jobs.csv`` says: lead times of delivered jobs and judged prints."""
+    """What one run's ``jobs.csv`` says: lead times of delivered jobs and judged prints, and a
+    digest of the jobs released (``arrivals``: id, part and release time of each job, each once;
+    two runs of one seed with common random numbers have the same)."""
 
     lead_times_s: tuple[float, ...]
     judged: int
     defective: int  # defective + failed outcomes
+    arrivals: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -482,7 +482,10 @@ def load_jobs(path: Path) -> JobStats:
         )
     leads: list[float] = []
     judged = defective = 0
+    jobs_released = set()
     for line, row in rows:
+        when = (row["released_s"] or "").strip()
+        jobs_released.add((row.get("id") or "", row.get("part") or "", when))
         if (row["delivered_s"] or "").strip():
             delivered = _number(path, line, "delivered_s", row["delivered_s"])
             released = _number(path, line, "released_s", row["released_s"])
@@ -498,7 +501,8 @@ def load_jobs(path: Path) -> JobStats:
                 )
             judged += 1
             defective += outcome != "good"
-    return JobStats(tuple(leads), judged, defective)
+    arrivals = hashlib.sha256(repr(sorted(jobs_released)).encode()).hexdigest()[:16]
+    return JobStats(tuple(leads), judged, defective, arrivals)
 
 
 # -- the numbers the report shows -------------------------------------------------------------
@@ -525,9 +529,20 @@ class Summary:
     violations:
         series -> kind -> violations summed over its ok runs.
     rankings:
-        The leader of every (panel, x) with data, panels then x in display order.
+        The leader of every (panel, x) with data, panels then x in display order, with its
+        paired differences to the other series.
     no_jobs:
         Ok cells whose run directory has no ``jobs.csv`` (left out of lead times and defects).
+    samples:
+        (panel, series, x) -> (seed, good parts per hour) of the ok runs, in file order.
+    arrivals_checked, arrivals_differ:
+        Pairs of runs of a paired difference (one seed, leader and series) whose ``jobs.csv``
+        were compared for common random numbers, and those whose released jobs differ.
+    target:
+        The half-width asked of the intervals (`HalfWidth`).
+    advice:
+        For each series' mean and each difference to the leader, setting by setting: whether
+        its interval meets `target` and how many seeds it needs.
     """
 
     study: Study
@@ -540,6 +555,16 @@ class Summary:
     violations: dict[str, dict[str, int]]
     rankings: tuple[Ranking, ...]
     no_jobs: tuple[str, ...]
+    samples: dict[Key, tuple[tuple[int, float], ...]] = field(default_factory=dict)
+    target: HalfWidth = DEFAULT_HALF_WIDTH
+    advice: tuple[Advice, ...] = ()
+    arrivals_checked: int = 0
+    arrivals_differ: tuple[str, ...] = ()
+
+    @property
+    def differences(self) -> tuple[Difference, ...]:
+        """Every difference of a leader to another series, in the order of `rankings`."""
+        return tuple(d for r in self.rankings for d in r.differences.values())
 
     @property
     def x_values(self) -> tuple[float, ...] | None:
@@ -550,7 +575,12 @@ class Summary:
         return None if any(v is None for v in values) else tuple(values)  # type: ignore[misc]
 
 
-def summarise(study: Study, jobs: Mapping[str, JobStats | None] | None = None) -> Summary:
+def summarise(
+    study: Study,
+    jobs: Mapping[str, JobStats | None] | None = None,
+    *,
+    half_width: HalfWidth = DEFAULT_HALF_WIDTH,
+) -> Summary:
     """Compute the report's numbers from the ok runs of `study`.
 
     Parameters
@@ -560,6 +590,8 @@ def summarise(study: Study, jobs: Mapping[str, JobStats | None] | None = None) -
     jobs:
         Cell id -> `JobStats` (None: no ``jobs.csv``); None reads every ok run's ``jobs.csv``
         with `load_jobs` (a missing file counts as None, a malformed one raises).
+    half_width:
+        The half-width asked of every interval, for `Summary.advice`.
 
     Raises
     ------
@@ -579,14 +611,16 @@ def summarise(study: Study, jobs: Mapping[str, JobStats | None] | None = None) -
         if all(_float_or_none(x) is not None for x in xs):
             xs = tuple(sorted(xs, key=lambda x: float(x)))  # type: ignore[arg-type]
 
-    good: dict[Key, list[float]] = {}
+    good: dict[Key, list[tuple[int, float]]] = {}
     leads: dict[Key, list[float]] = {}
     defects: dict[Key, list[int]] = {}
     violations = {s: dict.fromkeys(VIOLATION_KINDS, 0) for s in series}
     no_jobs = []
+    cell_of: dict[tuple[Key, int], str] = {}
     for r in ok:
         key = (study.panel_of(r), study.series_of(r), study.x_of(r))
-        good.setdefault(key, []).append(float(r.good_per_h))  # type: ignore[arg-type]
+        cell_of[(key, r.seed)] = r.cell
+        good.setdefault(key, []).append((r.seed, float(r.good_per_h)))  # type: ignore[arg-type]
         for kind, count in r.violations.items():
             violations[key[1]][kind] += count
         stats = jobs.get(r.cell)
@@ -598,14 +632,36 @@ def summarise(study: Study, jobs: Mapping[str, JobStats | None] | None = None) -
         counts[0] += stats.defective
         counts[1] += stats.judged
 
-    throughput = {k: mean_ci(v) for k, v in good.items()}
+    # Good parts per hour cannot be negative: intervals are cut at zero.
+    throughput = {
+        k: mean_ci((v for _, v in pairs), bounds=NON_NEGATIVE) for k, pairs in good.items()
+    }
     rankings = []
+    advice = []
+    checked, differ = 0, []
     for p in panels:
         for x in xs:
-            here = {s: throughput[(p, s, x)] for s in series if (p, s, x) in throughput}
-            if here:
-                leader, runner, verdict = rank(here)
-                rankings.append(Ranking(p, x, leader, runner, verdict))
+            here = {s: good[(p, s, x)] for s in series if (p, s, x) in good}
+            if not here:
+                continue
+            c = compare(here, bounds=NON_NEGATIVE)
+            rankings.append(Ranking(p, x, c.leader, c.runner_up, c.verdict, c.differences))
+            for s in here:
+                iv = throughput[(p, s, x)]
+                advice.append(_advice(p, x, s, iv.n, iv.half_width, iv.sd, half_width.of(iv.mean)))
+            target = half_width.of(throughput[(p, c.leader, x)].mean)
+            for s, d in c.differences.items():
+                if d.method is Method.PAIRED:
+                    for seed in d.seeds:
+                        pair = [jobs.get(cell_of[((p, name, x), seed)]) for name in (c.leader, s)]
+                        if pair[0] is None or pair[1] is None:
+                            continue
+                        checked += 1
+                        if pair[0].arrivals != pair[1].arrivals:
+                            where = _setting(study, p, x)
+                            differ.append(f"{where}: {c.leader} and {s}, seed {seed}")
+                n = len(d.seeds) if d.method is Method.PAIRED else min(d.n_a, d.n_b)
+                advice.append(_advice(p, x, f"{c.leader} − {s}", n, d.half_width, d.sd, target))
     return Summary(
         study=study,
         panels=panels,
@@ -617,7 +673,26 @@ def summarise(study: Study, jobs: Mapping[str, JobStats | None] | None = None) -
         violations=violations,
         rankings=tuple(rankings),
         no_jobs=tuple(no_jobs),
+        samples={k: tuple(v) for k, v in good.items()},
+        target=half_width,
+        advice=tuple(advice),
+        arrivals_checked=checked,
+        arrivals_differ=tuple(differ),
     )
+
+
+def _advice(
+    panel: str | None,
+    x: str | None,
+    series: str,
+    n: int,
+    hw: float | None,
+    sd: float | None,
+    target: float,
+) -> Advice:
+    """How many seeds an interval with spread `sd` needs for `target` (None: not known)."""
+    needed = None if sd is None or target <= 0 else replications_needed(sd, target)
+    return Advice(panel, x, series, n, hw, target, needed)
 
 
 # -- figures ----------------------------------------------------------------------------------
@@ -654,7 +729,7 @@ def throughput_figure(summary: Summary) -> Figure:
                 ax.errorbar(
                     [v + dodge for v, _ in pts],
                     [c.mean for _, c in pts],
-                    yerr=[np.nan if c.half_width is None else c.half_width for _, c in pts],
+                    yerr=_yerr([c for _, c in pts]),
                     marker="o",
                     ms=5,
                     capsize=3,
@@ -671,7 +746,7 @@ def throughput_figure(summary: Summary) -> Figure:
                 summary,
                 p,
                 lambda key: (
-                    (summary.throughput[key].mean, summary.throughput[key].half_width)
+                    (summary.throughput[key].mean, _yerr([summary.throughput[key]]))
                     if key in summary.throughput
                     else None
                 ),
@@ -787,8 +862,11 @@ def report_markdown(summary: Summary) -> str:
         f"{len(st.runs)} runs in `{_RESULTS}`: {len(points)} grid point(s) × seeds "
         f"{', '.join(map(str, st.seeds))}; {len(ok)} ok, {len(failed)} failed.",
         f"Axes: {axes}.",
-        "Statistics use the ok runs only: means across seeds with two-sided 95 % Student t "
-        "intervals (± half-width; none for a single seed).",
+        "Statistics use the ok runs only. Good parts per hour: the mean across seeds with its "
+        "two-sided 95 % Student t interval (scipy's t quantiles, n-1 degrees of freedom), shown as "
+        "± half-width, or as [low, high] where it is cut at 0 (no negative throughput); none "
+        "for a single seed. Series are compared by the leader's difference to each other "
+        "series, paired seed by seed where both ran the same seeds (see Comparisons).",
     ]
     if st.not_run:
         out.append(
@@ -817,6 +895,8 @@ def report_markdown(summary: Summary) -> str:
     out += ["", "## Good parts per hour", ""]
     out += _tables(summary, lambda key: _cell(summary.throughput.get(key)), leader=True)
     out += [""] + _winners(summary)
+    out += ["", "## Comparisons", ""] + _comparisons(summary)
+    out += ["", "## Replications", ""] + _replications(summary)
 
     out += [
         "",
@@ -856,6 +936,7 @@ def report_markdown(summary: Summary) -> str:
                 f"| {_md(s)} | " + " | ".join(str(counts[k]) for k in VIOLATION_KINDS) + " |"
             )
 
+    out += warmup_lines(r.run_dir for r in ok)  # MSER-5's suggestions (fleet.study.warmup)
     out += [
         "",
         "## Figures",
@@ -900,7 +981,12 @@ class ReportResult:
         return (self.report, *self.figures)
 
 
-def write_report(study_dir: Path, out_dir: Path | None = None) -> ReportResult:
+def write_report(
+    study_dir: Path,
+    out_dir: Path | None = None,
+    *,
+    half_width: HalfWidth = DEFAULT_HALF_WIDTH,
+) -> ReportResult:
     """Write the study report (three PNG figures and ``report.md``) for a study directory.
 
     Parameters
@@ -910,6 +996,9 @@ def write_report(study_dir: Path, out_dir: Path | None = None) -> ReportResult:
         cells' ``jobs.csv`` read when present).
     out_dir:
         Where to write; None writes into `study_dir`. Created when missing.
+    half_width:
+        The half-width asked of every interval: the report says which need more seeds, and
+        how many.
 
     Returns
     -------
@@ -922,7 +1011,7 @@ def write_report(study_dir: Path, out_dir: Path | None = None) -> ReportResult:
         See `load_study` and `load_jobs`.
     """
     study = load_study(Path(study_dir))
-    summary = summarise(study)
+    summary = summarise(study, half_width=half_width)
     out = Path(out_dir) if out_dir is not None else study.path
     out.mkdir(parents=True, exist_ok=True)
     figures = (
@@ -1081,6 +1170,16 @@ def _legend_cols(series: Sequence[str]) -> int:
     return 4 if longest <= 14 else 2 if longest <= 36 else 1
 
 
+def _yerr(intervals: Sequence[Interval]) -> np.ndarray:
+    """Error bars below and above each mean, as cut to the bounds (NaN: no interval)."""
+    return np.array(
+        [
+            [np.nan, np.nan] if c.half_width is None else [c.mean - c.low, c.high - c.mean]
+            for c in intervals
+        ]
+    ).T
+
+
 def _group_ticks(ax: Axes, summary: Summary) -> None:
     ax.set_xticks(range(len(summary.xs)))
     if summary.study.x_axis is None:
@@ -1099,7 +1198,8 @@ def _bars(
     colours: Mapping[str, Any],
 ) -> list[tuple[Key, Any]]:
     """Grouped bars: one group per x label, one bar per series; `value(key)` gives (height,
-    error half-width or None) or None for no bar. Returns (key, bar container) per bar."""
+    error bars below and above as a 2x1 array, or None) or None for no bar. Returns (key, bar
+    container) per bar."""
     k = len(summary.series)
     width = 0.8 / max(k, 1)
     drawn = []
@@ -1114,7 +1214,7 @@ def _bars(
                 j + (i - (k - 1) / 2) * width,
                 height,
                 width * 0.9,
-                yerr=None if err is None else [err],
+                yerr=err,
                 capsize=3,
                 color=colours[s],
                 gid=f"series:{s}",
@@ -1155,7 +1255,8 @@ def _verdict(r: Ranking) -> str:
         return f"none: {_md(r.leader)} and {_md(r.runner_up or '')} have equal means"
     if r.verdict is Verdict.NO_INTERVAL:
         return f"{_md(r.leader)}; no interval (one seed) to compare with {_md(r.runner_up or '')}"
-    return f"{_md(r.leader)}; tie with {_md(r.runner_up or '')} (intervals overlap)"
+    tied = [s for s, d in r.differences.items() if d.low <= 0]
+    return f"{_md(r.leader)}; tie with {_md(', '.join(tied))} (difference's interval reaches 0)"
 
 
 def _winners(summary: Summary) -> list[str]:
@@ -1181,16 +1282,162 @@ def _winners(summary: Summary) -> list[str]:
         out.append(f"- {equal} of {n} setting(s) have two series with equal highest means: "
                    "no leader.")  # fmt: skip
     if ties:
-        out.append(f"- {ties} of {n} setting(s) are ties: the leader's interval overlaps "
-                   "another series'.")  # fmt: skip
+        out.append(f"- {ties} of {n} setting(s) are ties: the interval of the leader's "
+                   "difference to another series reaches 0.")  # fmt: skip
     if unsure:
-        out.append(f"- {unsure} of {n} setting(s) have a single seed for the leader or the "
+        out.append(f"- {unsure} of {n} setting(s) have a single seed for the leader or "
                    "another series: no interval to decide.")  # fmt: skip
     out.append(
-        "- Clearly ahead means the leader's 95 % interval lies entirely above every other "
-        "series' interval."
+        "- Clearly ahead means the 95 % interval of the leader's difference to every other "
+        "series lies above 0 (Comparisons)."
     )
     return out
+
+
+def method_summary(summary: Summary) -> str:
+    """One sentence naming how the comparisons were computed, e.g. ``"95 % CI, paired t on 5
+    common seeds, df 4 (3 differences)"``; each distinct method with its count."""
+    diffs = summary.differences
+    if not diffs:
+        n = max((iv.n for iv in summary.throughput.values()), default=0)
+        if n <= 1:
+            return "one seed per series: no intervals (run at least 2 seeds)"
+        return f"{_percent()} CI of each mean (t, n-1 df); one series per setting: no differences"
+    counts: dict[str, int] = {}
+    for d in diffs:
+        counts[d.method_text()] = counts.get(d.method_text(), 0) + 1
+    return "; ".join(f"{text} ({k} difference{'s' if k > 1 else ''})" for text, k in counts.items())
+
+
+def _percent() -> str:
+    return f"{100 * CONFIDENCE:g} %"
+
+
+def _comparisons(summary: Summary) -> list[str]:
+    """The leader's difference to each other series, per setting, with the method named."""
+    if not summary.differences:
+        return ["One series per setting: nothing to compare."]
+    st = summary.study
+    paired = [d for d in summary.differences if d.method is Method.PAIRED]
+    out = [
+        "Leader minus each other series, good parts per hour, per setting. A seed draws the "
+        "same job arrivals in every series (common random numbers), so where two series ran "
+        "the same seeds the difference is taken seed by seed (paired t, n-1 df), which cancels "
+        "what the seeds share; where their seeds differ (failed runs) it falls back to Welch's "
+        "unpaired t with Welch-Satterthwaite df. A difference whose interval lies above 0 "
+        "separates the two.",
+        "",
+        f"Method: {method_summary(summary)}.",
+    ]
+    if paired and len(paired) == len(summary.differences):
+        out.append("Every comparison is paired: the series of each setting ran the same seeds.")
+    else:
+        out.append(
+            f"{len(summary.differences) - len(paired)} of {len(summary.differences)} "
+            "comparisons are not paired: their series' ok seeds differ."
+        )
+    if summary.arrivals_differ:
+        shown = "; ".join(summary.arrivals_differ[:5])
+        more = ", …" if len(summary.arrivals_differ) > 5 else ""
+        out.append(
+            f"Common random numbers checked in the runs' `jobs.csv`: the released jobs differ "
+            f"in {len(summary.arrivals_differ)} of {summary.arrivals_checked} pairs of runs "
+            f"({shown}{more}): an axis that changes the arrivals; pairing holds but cancels less."
+        )
+    elif summary.arrivals_checked:
+        out.append(
+            "Common random numbers checked in the runs' `jobs.csv`: the released jobs (id, part, "
+            f"release time) are the same in all {summary.arrivals_checked} pairs of runs."
+        )
+    first = st.x_axis or "setting"
+    for p in summary.panels:
+        rows = [r for r in summary.rankings if r.panel == p and r.differences]
+        if not rows:
+            continue
+        out.append("")
+        if p is not None:
+            out += [f"### {st.panel_axis} = {p}", ""]
+        out += [
+            f"| {first} | leader − series | difference (good parts/h) | separated | method |",
+            "|---|---|---:|---|---|",
+        ]
+        for r in rows:
+            for s, d in r.differences.items():
+                sep = "–" if d.half_width is None else "yes" if d.low > 0 else "no"
+                out.append(
+                    f"| {r.x if r.x is not None else 'all runs'} | {_md(r.leader)} − {_md(s)} | "
+                    f"{d.text()} | {sep} | {d.method_text()} |"
+                )
+    return out
+
+
+def _replications(summary: Summary) -> list[str]:
+    """Whether each interval meets the target half-width, and the seeds it needs if not."""
+    target = summary.target
+    out = [
+        f"Target half-width: {target.text()} (for a difference: of the leader's mean); set it "
+        "with `fleet report --half-width` (a share such as `5%`, or good parts/h such as `0.5`). "
+        "Seeds needed: the smallest n with t(0.975, n-1) · s / √n ≤ target, s the standard "
+        "deviation across seeds (of the per-seed differences, for a paired difference), found by "
+        "iterating n = ⌈(t(0.975, n-1) · s / target)²⌉ until it is stable.",
+        "",
+    ]
+    advice = summary.advice
+    if all(a.n <= 1 for a in advice):
+        return out + [
+            "One seed: no interval and no spread to estimate how many seeds are needed; run at "
+            "least 2 (`[study] seeds`)."
+        ]
+    short = [a for a in advice if not a.enough]
+    if not short:
+        return out + [f"Every interval ({len(advice)}) meets the target."]
+    out += [
+        f"{len(short)} of {len(advice)} intervals are wider than the target:",
+        "",
+        "| setting | interval | n | half-width | target | seeds needed |",
+        "|---|---|---:|---:|---:|---|",
+    ]
+    for a in short:
+        out.append(
+            f"| {_md(_setting(summary.study, a.panel, a.x))} | {_md(a.series)} | {a.n} | "
+            f"{_NO_DATA if a.half_width is None else f'{a.half_width:.2f}'} | "
+            f"{a.target:.2f} | {_needed(a)} |"
+        )
+    diffs = [a.needed for a in short if a.needed is not None and " − " in a.series]
+    means = [a.needed for a in short if a.needed is not None and " − " not in a.series]
+    needs = []
+    if diffs:
+        needs.append(f"{max(diffs)} seeds for every difference to the leader")
+    if means:
+        needs.append(f"{max(means)} for every mean")
+    if needs:
+        out += [
+            "",
+            f"To meet the target: {' and '.join(needs)} (`[study] seeds`; `fleet sweep` into "
+            "the same directory reuses the finished cells).",
+        ]
+    return out
+
+
+def _setting(study: Study, panel: str | None, x: str | None) -> str:
+    parts = []
+    if panel is not None:
+        parts.append(f"{study.panel_axis}={panel}")
+    if x is not None:
+        parts.append(f"{study.x_axis}={x}")
+    return ", ".join(parts) or "all runs"
+
+
+def _needed(a: Advice) -> str:
+    if a.needed is not None:
+        return str(a.needed)
+    if a.n <= 1:
+        return "unknown: one seed, no spread yet (run at least 2)"
+    if a.target <= 0:
+        return "unknown: the mean is 0"
+    if a.half_width is not None and " − " in a.series:
+        return "unknown: seeds differ (run the missing seeds to pair)"
+    return "unknown"
 
 
 def _cell(c: Interval | None) -> str:

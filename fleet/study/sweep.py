@@ -13,6 +13,7 @@ A study file (TOML) names a base scenario, the seeds, and a ``[grid]`` whose key
     rate_per_h = [6, 12]                     # jobs.rate_per_h
     map = ["../maps/shop_floor.toml"]        # scenario.map, relative to the STUDY file
     dispatcher = ["greedy"]                  # [dispatcher]: a plugin name or a table
+    charging = ["threshold", "opportunity"]  # [charging] (with [battery]): the same
     controller = [                           # [controller]: a plugin name or a table
         "follower",                          #   (label: the name)
         { label = "fixed 0.2", name = "fixed_speed", options = { speed = 0.2 } },
@@ -20,9 +21,10 @@ A study file (TOML) names a base scenario, the seeds, and a ``[grid]`` whose key
     "quality.tolerance_mm" = [0.05, 0.08]    # any other key: a dotted path into the scenario
 
 A cell's scenario is the base file's tables with, in this order, the study's ``duration_s``, each
-axis's value and the seed written in. Plugin axes replace the whole ``[controller]`` or
-``[dispatcher]`` table (the base's options are for the base's plugin); dotted axes write their
-value as is, so relative paths in them resolve against the base scenario's folder.
+axis's value and the seed written in. Plugin axes replace the whole ``[controller]``,
+``[dispatcher]`` or ``[charging]`` table (the base's options are for the base's plugin); dotted
+axes write their value as is, so relative paths in them resolve against the base scenario's
+folder.
 
 A *cell* is one point of the grid with one seed. `load_study` builds and validates every cell's
 scenario before anything runs, so a bad value fails at once with a `StudyError` naming the study
@@ -62,9 +64,12 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fleet.errors import FleetError, InputError, ScenarioError
+
+if TYPE_CHECKING:
+    from fleet.scenario import Scenario
 
 __all__ = [
     "StudyError",
@@ -78,6 +83,7 @@ __all__ = [
     "SweepInterrupted",
     "KPI_COLUMNS",
     "load_study",
+    "parse_study",
     "run_study",
     "run_cell",
     "dask_executor",
@@ -90,6 +96,7 @@ NAMED_AXES: dict[str, tuple[str, ...]] = {
     "map": ("scenario", "map"),
     "dispatcher": ("dispatcher",),
     "controller": ("controller",),
+    "charging": ("charging",),
 }
 
 #: Results-table columns taken from each cell's summary.json, in order, with their place in it.
@@ -283,8 +290,6 @@ def load_study(path: str | Path) -> Study:
         value its scenario field rejects, or names a plugin nobody registered. The message
         names the study file, the field (e.g. ``grid.robots[1]``) and the value.
     """
-    from fleet.scenario import parse_scenario
-
     path = Path(path)
     src = str(path)
     try:
@@ -295,8 +300,21 @@ def load_study(path: str | Path) -> Study:
         raise StudyError(src, "(file)", src, f"cannot read the study file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(src, "(syntax)", str(exc), "the file must be valid TOML") from None
+    return parse_study(raw, path)
+
+
+def parse_study(raw: dict[str, Any], path: Path, *, base_scenario: Scenario | None = None) -> Study:
+    """Validate a study's tables `raw` as if read from the file `path` (`load_study`).
+
+    With `base_scenario` (one that keeps the tables it was read from, as `fleet.api`'s do), its
+    tables are the base and ``[study] scenario`` must be left out: how `fleet.api.sweep` sweeps
+    a scenario made in code. Errors name `path`.
+    """
+    from fleet.scenario import parse_scenario
+
+    src = str(path)
     _no_unknown(src, "", raw, ("study", "grid"))
-    st = raw.get("study")
+    st = raw.get("study", {} if base_scenario is not None else None)
     if not isinstance(st, dict):
         raise StudyError(src, "study", st, "a [study] table with at least `scenario` is required")
     _no_unknown(src, "study.", st, ("name", "scenario", "seeds", "duration_s"))
@@ -304,23 +322,17 @@ def load_study(path: str | Path) -> Study:
     if not isinstance(name, str) or not name:
         raise StudyError(src, "study.name", name, "must be a non-empty string")
     base_value = st.get("scenario")
-    if not isinstance(base_value, str):
-        raise StudyError(
-            src, "study.scenario", base_value, "is required: the base scenario file (a string)"
-        )
-    base = (path.parent / base_value).resolve()
-    try:
-        base_raw = tomllib.loads(base.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise StudyError(src, "study.scenario", base_value, f"no such file ({base})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StudyError(
-            src, "study.scenario", base_value, f"cannot read the scenario: {exc}"
-        ) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyError(
-            src, "study.scenario", base_value, f"the scenario is not valid TOML: {exc}"
-        ) from None
+    if base_scenario is not None:
+        if base_value is not None or not base_scenario.tables or base_scenario.origin is None:
+            why = "a study of a scenario in code takes no scenario file"
+            if base_value is None:
+                why = "the scenario has no tables to sweep (load it, or build it from a dict)"
+            raise StudyError(src, "study.scenario", base_value, why)
+        base_value = base_scenario.source
+        base = base_scenario.origin.resolve()
+        base_raw = copy.deepcopy(dict(base_scenario.tables))
+    else:
+        base, base_raw = _read_base(src, path, base_value)
     seeds = _seeds(src, st.get("seeds", 1))
     duration = st.get("duration_s")
     if duration is not None and not _is_positive(duration):
@@ -395,6 +407,28 @@ def load_study(path: str | Path) -> Study:
     )
 
 
+def _read_base(src: str, path: Path, base_value: Any) -> tuple[Path, dict[str, Any]]:
+    """The base scenario file ``[study] scenario`` names (relative to the study) and its tables."""
+    if not isinstance(base_value, str):
+        raise StudyError(
+            src, "study.scenario", base_value, "is required: the base scenario file (a string)"
+        )
+    base = (path.parent / base_value).resolve()
+    try:
+        base_raw = tomllib.loads(base.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise StudyError(src, "study.scenario", base_value, f"no such file ({base})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StudyError(
+            src, "study.scenario", base_value, f"cannot read the scenario: {exc}"
+        ) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyError(
+            src, "study.scenario", base_value, f"the scenario is not valid TOML: {exc}"
+        ) from None
+    return base, base_raw
+
+
 def _no_unknown(src: str, prefix: str, table: dict[str, Any], allowed: tuple[str, ...]) -> None:
     for key in table:
         if key not in allowed:
@@ -446,7 +480,7 @@ def _axis(src: str, study: Path, key: str, values: Any, base_raw: dict[str, Any]
     out: list[AxisValue] = []
     for i, value in enumerate(values):
         at = f"{where}[{i}]"
-        if key in ("controller", "dispatcher"):
+        if key in ("controller", "dispatcher", "charging"):
             item = _plugin_value(src, at, value)
         elif key == "map":
             if not isinstance(value, str):
@@ -472,7 +506,7 @@ def _grid_field(key: str) -> str:
 
 
 def _plugin_value(src: str, at: str, value: Any) -> AxisValue:
-    """A controller/dispatcher axis value: a plugin name, or {name, options, label}."""
+    """A controller/dispatcher/charging axis value: a plugin name, or {name, options, label}."""
     if isinstance(value, str):
         return AxisValue(value, {"name": value})
     if not isinstance(value, dict):
@@ -532,7 +566,7 @@ def _plugins() -> dict[str, set[str]]:
 
     return {
         kind: {info.name for info in discover(kind) if info.ok}
-        for kind in ("controller", "dispatcher")
+        for kind in ("controller", "dispatcher", "charging")
     }
 
 
@@ -557,9 +591,13 @@ def _check_plugins(
             )
         # Build it once, so options the plugin rejects fail here and not in every cell.
         from fleet.errors import PluginError
-        from fleet.plugins import load_controller, load_dispatcher
+        from fleet.plugins import load_charging_policy, load_controller, load_dispatcher
 
-        loader = load_controller if kind == "controller" else load_dispatcher
+        loader = {
+            "controller": load_controller,
+            "dispatcher": load_dispatcher,
+            "charging": load_charging_policy,
+        }[kind]
         try:
             loader(name, getattr(scenario, kind).options)
         except PluginError as exc:
@@ -589,7 +627,8 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     """Run one cell into its run directory and return its record; never raises.
 
     The run directory holds what ``fleet run --no-figures`` writes (summary.json,
-    trajectories.csv, events.csv, jobs.csv, tasks.csv, caps.csv, plans.csv, violations.csv), plus
+    trajectories.csv, events.csv, jobs.csv, attempts.csv, tasks.csv, caps.csv, plans.csv,
+    violations.csv), plus
     ``cell.json`` (the record, written atomically) and, when the cell failed, ``error.txt`` (the
     traceback). Any exception (plugin options that do not suit the robots, a crash mid-run, a
     full disk) makes the record
@@ -670,7 +709,9 @@ def run_study(
         end). A given executor (e.g. from `dask_executor`) is used as is and not shut down;
         its workers must see `out_dir` on the same path.
     workers:
-        Processes of the pool created when `executor` is None (default: the CPU count).
+        Processes of the pool created when `executor` is None (default: the CPU count); 0 runs
+        the cells one after another in this process (`fleet.api.sweep`'s ``jobs=0``: no process
+        to start, and no ``__main__`` guard needed in a script).
     progress:
         Called in this process as ``progress(record, done, total)`` per cell reused or
         finished; ``record["skipped"]`` tells which.
@@ -688,8 +729,8 @@ def run_study(
         On Ctrl-C (KeyboardInterrupt): the cells still running are stopped (the local pool's
         workers are terminated), what finished is kept, study.json says ``"complete": false``.
     """
-    if workers is not None and (not _is_int(workers) or workers < 1):
-        raise ValueError(f"workers = {workers!r}: must be a whole number >= 1 (or None)")
+    if workers is not None and (not _is_int(workers) or workers < 0):
+        raise ValueError(f"workers = {workers!r}: must be a whole number >= 0 (or None)")
     out = Path(out_dir).resolve()
     (out / "cells").mkdir(parents=True, exist_ok=True)
     # Incomplete until the last cell has its record: a sweep stopped in any way says so.
@@ -754,9 +795,12 @@ def _run_todo(
     out: Path,
     finished: Callable[[Cell, dict[str, Any]], None],
 ) -> None:
-    """Run the cells of `todo` on `executor`, or on local process pools."""
+    """Run the cells of `todo` on `executor`, on local process pools, or (`workers` 0) here."""
     if executor is not None:
         _run_cells(executor, todo, study, out, finished, own=False)
+    elif workers == 0:
+        for cell in todo:
+            finished(cell, run_cell(study.spec(cell, out)))
     elif todo:
         size = min(workers or os.cpu_count() or 1, len(todo))
         # A worker that dies (killed, out of memory) breaks the whole pool and every cell still

@@ -7,11 +7,13 @@ The two figures of the MAMbot paper, for any scenario, and a Gantt chart of the 
 - ``speed.png``: each robot's vx and vy against time with the limit in force at every step,
   ``min(zone limit, print cap)``, and its print tasks shaded by kind;
 - ``gantt.png``: one row per robot, its print tasks as bars coloured by kind, the time each
-  job was in hand and when it was delivered.
+  job was in hand and when it was delivered; attempts handed back (``attempts.csv``) hatched
+  grey, scrapped, with a cross where the robot handed the job back.
 
 Everything is drawn on `matplotlib.figure.Figure` objects with an Agg canvas, never pyplot: no
 display is needed and no global figure state leaks between callers (the CLI, tests, notebooks).
-The readers (`load_run`, `load_tracks`, `load_caps`, `load_tasks`, `load_events`, `load_jobs`)
+The readers (`load_run`, `load_tracks`, `load_caps`, `load_tasks`, `load_events`, `load_jobs`,
+`load_attempts`)
 and the drawing helpers (`plot_floor`, `zone_colours`, `KIND_COLOURS`) are public so further
 views (`fleet.view.replay`) share them.
 
@@ -26,7 +28,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -45,6 +47,7 @@ from shapely.geometry.base import BaseGeometry
 
 from fleet.errors import InputError
 from fleet.floor import Floor, load_floor
+from fleet.view.kpi_figures import save_kpi_figures
 
 __all__ = [
     "Track",
@@ -52,7 +55,9 @@ __all__ = [
     "TaskSpan",
     "RunEvent",
     "JobRow",
+    "AttemptRow",
     "RunData",
+    "SCRAPPED_COLOUR",
     "KIND_COLOURS",
     "TRAJECTORY_PNG",
     "SPEED_PNG",
@@ -64,6 +69,8 @@ __all__ = [
     "load_tasks",
     "load_events",
     "load_jobs",
+    "load_attempts",
+    "scrapped_attempts",
     "load_run",
     "step_limits",
     "zone_colours",
@@ -94,6 +101,11 @@ _CAP_COLUMNS = ("robot", "job", "kind", "start_s", "end_s", "cap")
 _TASK_COLUMNS = ("robot", "job", "kind", "start_s", "end_s")
 _EVENT_COLUMNS = ("t", "event", "job", "robot", "station")
 _JOB_COLUMNS = ("id", "robot", "released_s", "started_s", "finished_s", "delivered_s")
+_ATTEMPT_COLUMNS = ("job", "attempt", "robot", "assigned_s", "ended_s", "result")
+#: Fill of the print of an attempt handed back (scrapped), drawn hatched in its kind's colour;
+#: the cross where the job was handed back.
+SCRAPPED_COLOUR = "#d9d9d9"
+_HANDBACK_COLOUR = "#b00000"
 _OBSTACLE_COLOUR = "#6b0f0f"
 _CLEARANCE_COLOUR = "#cfcfcf"
 _DPI = 150
@@ -135,7 +147,8 @@ class Track:
 class PrintCap:
     """One print task of one robot from ``caps.csv``: the per-axis cap on ``[start_s, end_s)``.
 
-    `cap` is ``inf`` for a task whose kind carries no cap (it is still drawn).
+    `cap` is ``inf`` for a task whose kind carries no cap (it is still drawn). `attempt` is the
+    attempt at the job it belongs to (``attempts.csv``); `scrapped`: that attempt was handed back.
     """
 
     robot: str
@@ -144,17 +157,22 @@ class PrintCap:
     start_s: float
     end_s: float
     cap: float
+    attempt: int = 1
+    scrapped: bool = False
 
 
 @dataclass(frozen=True)
 class TaskSpan:
-    """One print task of one robot on the clock (absolute seconds), capped or not."""
+    """One print task of one robot on the clock (absolute seconds), capped or not; in attempt
+    `attempt` at the job, `scrapped` when that attempt was handed back (its part scrapped)."""
 
     robot: str
     job: str
     kind: str
     start_s: float
     end_s: float
+    attempt: int = 1
+    scrapped: bool = False
 
 
 @dataclass(frozen=True)
@@ -185,11 +203,35 @@ class JobRow:
     predicted_error_mm: float | None = None
 
 
+@dataclass(frozen=True)
+class AttemptRow:
+    """One row of ``attempts.csv``: one robot's try at a job and how it ended (`result`:
+    delivered, handed_back, failed or unfinished); None where the cell is empty."""
+
+    job: str
+    attempt: int
+    robot: str
+    assigned_s: float
+    ended_s: float | None
+    result: str
+    reason: str | None = None
+    started_s: float | None = None
+    print_start_s: float | None = None
+    printed_s: float = 0.0
+    scrapped_s: float = 0.0
+
+    @property
+    def scrapped(self) -> bool:
+        """Handed back (also the last time, failing the job): its print is scrapped."""
+        return self.result in ("handed_back", "failed")
+
+
 @dataclass(frozen=True, eq=False)
 class RunData:
     """Everything the figures need from one run directory.
 
-    `tasks`, `events` and `jobs` are empty when the run directory lacks their files.
+    `tasks`, `events`, `jobs` and `attempts` are empty when the run directory lacks their
+    files.
     """
 
     run_dir: Path
@@ -200,6 +242,7 @@ class RunData:
     tasks: tuple[TaskSpan, ...] = ()
     events: tuple[RunEvent, ...] = ()
     jobs: tuple[JobRow, ...] = ()
+    attempts: tuple[AttemptRow, ...] = ()
 
     @property
     def t_end(self) -> float:
@@ -248,10 +291,14 @@ def load_tracks(path: Path) -> dict[str, Track]:
     return tracks
 
 
-def load_caps(path: Path) -> tuple[PrintCap, ...]:
+def load_caps(
+    path: Path, scrapped: Collection[tuple[str, int]] = frozenset()
+) -> tuple[PrintCap, ...]:
     """Read ``caps.csv``; an absent file means no print tasks (an empty tuple).
 
-    An empty `cap` cell (or ``inf``) is a task without a cap.
+    An empty `cap` cell (or ``inf``) is a task without a cap; a missing or empty ``attempt``
+    column is the first attempt. Caps of the ``(job, attempt)`` pairs in `scrapped` (attempts
+    handed back, `load_attempts`) are marked scrapped.
 
     Raises
     ------
@@ -275,16 +322,31 @@ def load_caps(path: Path) -> tuple[PrintCap, ...]:
             raise InputError(
                 str(path), f"line {line}, cap", row["cap"], "must be >= 0 m/s (empty: no cap)"
             )
-        caps.append(PrintCap(row["robot"], row["job"], row["kind"], start, end, cap))
+        n = _attempt(path, line, row)
+        caps.append(
+            PrintCap(
+                row["robot"],
+                row["job"],
+                row["kind"],
+                start,
+                end,
+                cap,
+                n,
+                (row["job"], n) in scrapped,
+            )
+        )
     return tuple(sorted(caps, key=lambda c: (c.robot, c.start_s)))
 
 
-def load_tasks(run_dir: Path) -> tuple[TaskSpan, ...]:
+def load_tasks(
+    run_dir: Path, scrapped: Collection[tuple[str, int]] | None = None
+) -> tuple[TaskSpan, ...]:
     """Every print task of a run directory, sorted by robot then start.
 
     Read from ``tasks.csv`` (every task, capped or not) when it holds rows, else from
     ``caps.csv`` (only the tasks of capped kinds: what runs written before ``tasks.csv``
-    existed recorded); no file means no tasks.
+    existed recorded); no file means no tasks. Tasks of the ``(job, attempt)`` pairs in
+    `scrapped` are marked scrapped; None: the attempts handed back in ``attempts.csv``.
 
     Raises
     ------
@@ -292,6 +354,8 @@ def load_tasks(run_dir: Path) -> tuple[TaskSpan, ...]:
         A column is missing, a time is not a number, or a task ends before it starts.
     """
     run_dir = Path(run_dir)
+    if scrapped is None:
+        scrapped = scrapped_attempts(load_attempts(run_dir / "attempts.csv"))
     path = run_dir / "tasks.csv"
     tasks = []
     if path.is_file():
@@ -305,11 +369,22 @@ def load_tasks(run_dir: Path) -> tuple[TaskSpan, ...]:
                     row["end_s"],
                     f"must be after start_s {start:g}",
                 )
-            tasks.append(TaskSpan(row["robot"], row["job"], row["kind"], start, end))
+            n = _attempt(path, line, row)
+            tasks.append(
+                TaskSpan(
+                    row["robot"],
+                    row["job"],
+                    row["kind"],
+                    start,
+                    end,
+                    n,
+                    (row["job"], n) in scrapped,
+                )
+            )
     if not tasks:
         tasks = [
-            TaskSpan(c.robot, c.job, c.kind, c.start_s, c.end_s)
-            for c in load_caps(run_dir / "caps.csv")
+            TaskSpan(c.robot, c.job, c.kind, c.start_s, c.end_s, c.attempt, c.scrapped)
+            for c in load_caps(run_dir / "caps.csv", scrapped)
         ]
     return tuple(sorted(tasks, key=lambda k: (k.robot, k.start_s)))
 
@@ -388,12 +463,66 @@ def load_jobs(path: Path) -> tuple[JobRow, ...]:
     return tuple(jobs)
 
 
+def load_attempts(path: Path) -> tuple[AttemptRow, ...]:
+    """Read ``attempts.csv``, in the file's order; an absent file means no attempts recorded
+    (a run written before attempts were).
+
+    Raises
+    ------
+    InputError
+        A required column is missing, a time is not a number or an attempt not a whole number.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return ()
+
+    def number(line: int, row: dict[str, str], column: str) -> float | None:
+        text = row.get(column) or ""
+        return None if text.strip() == "" else csv_number(path, line, column, text)
+
+    return tuple(
+        AttemptRow(
+            job=row["job"],
+            attempt=_attempt(path, line, row),
+            robot=row["robot"],
+            assigned_s=csv_number(path, line, "assigned_s", row["assigned_s"]),
+            ended_s=number(line, row, "ended_s"),
+            result=row["result"],
+            reason=row.get("reason") or None,
+            started_s=number(line, row, "started_s"),
+            print_start_s=number(line, row, "print_start_s"),
+            printed_s=number(line, row, "printed_s") or 0.0,
+            scrapped_s=number(line, row, "scrapped_s") or 0.0,
+        )
+        for line, row in read_csv_rows(path, _ATTEMPT_COLUMNS)
+    )
+
+
+def scrapped_attempts(attempts: Iterable[AttemptRow]) -> frozenset[tuple[str, int]]:
+    """The ``(job, attempt)`` pairs of the attempts handed back: their prints are scrapped."""
+    return frozenset((a.job, a.attempt) for a in attempts if a.scrapped)
+
+
+def _attempt(path: Path, line: int, row: dict[str, str]) -> int:
+    """The ``attempt`` cell of a row: a whole number >= 1; 1 when missing or empty."""
+    text = (row.get("attempt") or "").strip()
+    if not text:
+        return 1
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise InputError(str(path), f"line {line}, attempt", text, "must be a whole number >= 1")
+    return n
+
+
 def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
     """Read a run directory written by `fleet run`.
 
-    ``trajectories.csv`` is required; ``caps.csv``, ``tasks.csv``, ``events.csv`` and
-    ``jobs.csv`` are read when present (see `load_caps`, `load_tasks`, `load_events`,
-    `load_jobs`).
+    ``trajectories.csv`` is required; ``caps.csv``, ``tasks.csv``, ``events.csv``,
+    ``jobs.csv`` and ``attempts.csv`` are read when present (see `load_caps`, `load_tasks`,
+    `load_events`, `load_jobs`, `load_attempts`).
 
     Parameters
     ----------
@@ -436,15 +565,18 @@ def load_run(run_dir: Path, floor: Floor | None = None) -> RunData:
                 str(summary_path), "map", map_file, "must be the path of the run's map file"
             )
         floor = load_floor(map_file)
+    attempts = load_attempts(run_dir / "attempts.csv")
+    scrapped = scrapped_attempts(attempts)
     return RunData(
         run_dir,
         summary,
         floor,
         tracks,
-        load_caps(run_dir / "caps.csv"),
-        load_tasks(run_dir),
+        load_caps(run_dir / "caps.csv", scrapped),
+        load_tasks(run_dir, scrapped),
         load_events(run_dir / "events.csv"),
         load_jobs(run_dir / "jobs.csv"),
+        attempts,
     )
 
 
@@ -728,20 +860,25 @@ def speed_figure(
     robots: int = 6,
     title: str | None = None,
     t_end: float | None = None,
+    attempts: Sequence[AttemptRow] = (),
 ) -> Figure:
     """The paper's velocity figure: vx, vy and the limit in force against time, per robot.
 
     One panel per robot (the first `robots` in id order), on a shared time axis from 0 to
     `t_end` (default: the last sample), so the axis ends where the run ended. Velocities are
     drawn as steps (``v[k]`` held over ``[t[k], t[k+1])``); the limit of `step_limits` as a
-    ``+/-`` step line; the robot's print tasks are shaded by kind.
+    ``+/-`` step line; the robot's print tasks are shaded by kind, those of an attempt handed
+    back (scrapped) hatched grey; a dotted red line marks each hand-back of one of `attempts`
+    (`load_attempts`) by the robot.
 
     Returns
     -------
     Figure
         One axes per robot shown, in order, each titled with the robot id. Lines carry gids
         ``"vx"``, ``"vy"``, ``"limit+"`` and ``"limit-"`` (the limit lines' y-data holds one
-        value per step plus the last one repeated, as `Axes.step` needs).
+        value per step plus the last one repeated, as `Axes.step` needs), hand-backs
+        ``"handed_back:<job>:<attempt>"``; scrapped prints are patches with gid
+        ``"scrapped:<job>:<kind>:<attempt>"``.
     """
     shown = list(tracks)[: max(0, robots)]
     fig = _figure((10.0, 1.2 + 2.0 * max(1, len(shown))))
@@ -752,14 +889,40 @@ def speed_figure(
         return fig
     axes = fig.subplots(len(shown), 1, sharex=True, squeeze=False)[:, 0]
     kinds_seen: dict[str, Patch] = {}
+    scrapped_seen = handed_back_seen = False
     for ax, rid in zip(axes, shown, strict=True):
         tr = tracks[rid]
         mine = [c for c in caps if c.robot == rid]
         for c in mine:
             colour = KIND_COLOURS.get(c.kind, KIND_COLOURS["other"])
+            if c.scrapped:
+                ax.axvspan(
+                    c.start_s,
+                    c.end_s,
+                    facecolor=SCRAPPED_COLOUR,
+                    edgecolor=colour,
+                    hatch="////",
+                    lw=0,
+                    alpha=0.6,
+                    zorder=0,
+                    gid=f"scrapped:{c.job}:{c.kind}:{c.attempt}",
+                )
+                scrapped_seen = True
+                continue
             ax.axvspan(c.start_s, c.end_s, color=colour, alpha=0.15, lw=0, zorder=0)
             if c.kind not in kinds_seen:
                 kinds_seen[c.kind] = Patch(facecolor=colour, alpha=0.3, label=f"print: {c.kind}")
+        for a in attempts:
+            if a.robot == rid and a.scrapped and a.ended_s is not None:
+                handed_back_seen = True
+                ax.axvline(
+                    a.ended_s,
+                    color=_HANDBACK_COLOUR,
+                    lw=1.0,
+                    ls=":",
+                    zorder=3,
+                    gid=f"handed_back:{a.job}:{a.attempt}",
+                )
         if len(tr.t):
             ax.step(tr.t, tr.v[:, 0], where="post", lw=1.0, color="#1f77b4", gid="vx")
             ax.step(tr.t, tr.v[:, 1], where="post", lw=1.0, color="#ff7f0e", gid="vy")
@@ -782,6 +945,7 @@ def speed_figure(
         Line2D([], [], color="#ff7f0e", lw=1.0, label="vy"),
         Line2D([], [], color="black", lw=0.9, ls="--", label="limit (zone, print cap)"),
         *kinds_seen.values(),
+        *_scrapped_handles(scrapped_seen, handed_back_seen, line=True),
     ]
     fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8)
     heading = title or ""
@@ -801,14 +965,17 @@ def gantt_figure(
     robots: Sequence[str] | None = None,
     t_end: float | None = None,
     title: str | None = None,
+    attempts: Sequence[AttemptRow] = (),
 ) -> Figure:
     """A Gantt chart of the prints: one row per robot, its print tasks as bars over time.
 
     Each task is a bar coloured by `KIND_COLOURS`; behind the bars a thin grey band shows
-    each job from its assignment to its delivery (``assigned`` and ``delivered`` events; to
-    the end when not delivered); a black triangle marks each delivery. A job's id is written
-    over its print (first task's start to last task's end) when it fits there, in red when
-    ``jobs.csv`` judged the part anything but good.
+    each job in hand from its assignment to its delivery (each of `attempts` in its robot's
+    row, to its end; without attempts, from the ``assigned`` and ``delivered`` events); to
+    the end when not delivered; a black triangle marks each delivery. The print of an attempt
+    handed back is scrapped: its tasks are hatched grey bars, and a red cross marks the
+    hand-back. A job's id is written over each attempt's print (first task's start to last
+    task's end) when it fits there, in red when ``jobs.csv`` judged the part anything but good.
 
     Parameters
     ----------
@@ -818,6 +985,9 @@ def gantt_figure(
         The run's events (`load_events`): assignments and deliveries.
     jobs:
         The run's jobs (`load_jobs`): outcomes for the label colour.
+    attempts:
+        The run's attempts at jobs (`load_attempts`): who held each job when, and the
+        hand-backs; empty: the jobs in hand are read from `events`.
     robots:
         The rows, top to bottom; None: every robot named in `tasks` or `events`, in id order.
         Tasks of robots not listed are left out.
@@ -830,9 +1000,12 @@ def gantt_figure(
     -------
     Figure
         One axes, robot ids as y tick labels (row i at y = i, the first robot on top). Task bars
-        are `Rectangle` patches with gid ``"task:<robot>:<job>:<kind>"``, job bands
-        ``"held:<job>"``, job labels are texts with gid ``"label:<job>"`` (hidden when they do
-        not fit), deliveries one `Line2D` with gid ``"delivered"`` (x: times, y: rows).
+        are `Rectangle` patches with gid ``"task:<robot>:<job>:<kind>"`` (scrapped ones
+        ``"scrapped:<robot>:<job>:<kind>:<attempt>"``), job bands ``"held:<job>"`` (a later
+        attempt's ``"held:<job>:<attempt>"``), job labels are texts with gid ``"label:<job>"``
+        (``"label:<job>:<attempt>"``; hidden when they do not fit), deliveries one `Line2D`
+        with gid ``"delivered"`` and hand-backs one with gid ``"handed_back"`` (x: times, y:
+        rows).
     """
     if robots is None:
         named = {t.robot for t in tasks} | {e.robot for e in events if e.robot}
@@ -847,21 +1020,38 @@ def gantt_figure(
         fig.suptitle(title)
 
     shown = [t for t in tasks if t.robot in rows]
-    held_from: dict[str, tuple[str, float]] = {}
+    # (robot, start, end or None, gid suffix) of each spell a job was in hand.
+    held: list[tuple[str, float, float | None, str]] = []
     delivered: dict[str, tuple[str, float]] = {}
-    for e in events:
-        if e.event == "assigned" and e.robot in rows:
-            held_from[e.job] = (e.robot, e.t)
-        elif e.event == "delivered":
-            robot = e.robot or held_from.get(e.job, ("", 0.0))[0]
-            if robot in rows:
-                delivered[e.job] = (robot, e.t)
+    handed_back: list[tuple[str, float]] = []
+    if attempts:
+        for a in attempts:
+            if a.robot not in rows:
+                continue
+            held.append((a.robot, a.assigned_s, a.ended_s, _suffix(a.job, a.attempt)))
+            if a.result == "delivered" and a.ended_s is not None:
+                delivered[a.job] = (a.robot, a.ended_s)
+            elif a.scrapped and a.ended_s is not None:
+                handed_back.append((a.robot, a.ended_s))
+    else:
+        held_from: dict[str, tuple[str, float]] = {}
+        for e in events:
+            if e.event == "assigned" and e.robot in rows:
+                held_from[e.job] = (e.robot, e.t)
+            elif e.event == "delivered":
+                robot = e.robot or held_from.get(e.job, ("", 0.0))[0]
+                if robot in rows:
+                    delivered[e.job] = (robot, e.t)
+        held = [
+            (robot, start, delivered[job][1] if job in delivered else None, job)
+            for job, (robot, start) in held_from.items()
+        ]
     times = [t.end_s for t in shown] + [e.t for e in events]
     end = t_end if t_end is not None else max(times, default=1.0)
 
     handles: list[Any] = []
-    for job, (robot, start) in held_from.items():
-        stop = delivered[job][1] if job in delivered else end
+    for robot, start, stop, suffix in held:
+        stop = end if stop is None else stop
         ax.add_patch(
             Rectangle(
                 (start, rows[robot] - 0.12),
@@ -870,15 +1060,31 @@ def gantt_figure(
                 facecolor="0.8",
                 edgecolor="none",
                 zorder=1,
-                gid=f"held:{job}",
+                gid=f"held:{suffix}",
             )
         )
-    if held_from:
+    if held:
         handles.append(Patch(facecolor="0.8", label="job in hand (assigned to delivered)"))
 
     kinds_seen: set[str] = set()
     for t in shown:
         colour = KIND_COLOURS.get(t.kind, KIND_COLOURS["other"])
+        if t.scrapped:
+            # Printed, then scrapped with the hand-back: grey, hatched in its kind's colour.
+            ax.add_patch(
+                Rectangle(
+                    (t.start_s, rows[t.robot] - 0.35),
+                    t.end_s - t.start_s,
+                    0.7,
+                    facecolor=SCRAPPED_COLOUR,
+                    edgecolor=colour,
+                    hatch="////",
+                    lw=0.4,
+                    zorder=2,
+                    gid=f"scrapped:{t.robot}:{t.job}:{t.kind}:{t.attempt}",
+                )
+            )
+            continue
         kinds_seen.add(t.kind if t.kind in KIND_COLOURS else "other")
         ax.add_patch(
             Rectangle(
@@ -897,14 +1103,15 @@ def gantt_figure(
         for kind, colour in KIND_COLOURS.items()
         if kind in kinds_seen
     ]
+    handles += _scrapped_handles(any(t.scrapped for t in shown), bool(handed_back))
 
     bad = {j.id for j in jobs if j.outcome not in (None, "good")}
-    spans: dict[tuple[str, str], tuple[float, float]] = {}
+    spans: dict[tuple[str, str, int], tuple[float, float]] = {}
     for t in shown:
-        a, b = spans.get((t.robot, t.job), (t.start_s, t.end_s))
-        spans[(t.robot, t.job)] = (min(a, t.start_s), max(b, t.end_s))
+        a, b = spans.get((t.robot, t.job, t.attempt), (t.start_s, t.end_s))
+        spans[(t.robot, t.job, t.attempt)] = (min(a, t.start_s), max(b, t.end_s))
     labels = []
-    for (robot, job), (a, b) in spans.items():
+    for (robot, job, attempt), (a, b) in spans.items():
         text = ax.text(
             (a + b) / 2,
             rows[robot],
@@ -914,7 +1121,7 @@ def gantt_figure(
             fontsize=7,
             color="#b00000" if job in bad else "black",
             zorder=4,
-            gid=f"label:{job}",
+            gid=f"label:{_suffix(job, attempt)}",
             clip_on=True,
             bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7},
         )
@@ -939,10 +1146,24 @@ def gantt_figure(
         handles.append(
             Line2D([], [], ls="none", marker="v", mfc="black", mec="white", label="delivered")
         )
+    if handed_back:
+        handed_back.sort(key=lambda p: p[1])
+        ax.plot(
+            [t for _, t in handed_back],
+            [rows[r] for r, _ in handed_back],
+            ls="none",
+            marker="X",
+            ms=7,
+            mfc=_HANDBACK_COLOUR,
+            mec="white",
+            mew=0.5,
+            zorder=5,
+            gid="handed_back",
+        )
     ax.set_xlim(0.0, max(end, 1e-9))
     ax.grid(axis="x", color="0.9", lw=0.5, zorder=0)
     ax.set_axisbelow(True)
-    if not shown and not held_from:
+    if not shown and not held:
         ax.text(0.5, 0.5, "no print tasks", transform=ax.transAxes, ha="center", va="center")
     if handles:
         fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8)
@@ -958,7 +1179,8 @@ def gantt_figure(
 
 
 def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int = 6) -> list[Path]:
-    """Write ``trajectory.png``, ``speed.png`` and ``gantt.png`` into `run_dir`.
+    """Write ``trajectory.png``, ``speed.png``, ``gantt.png`` (and ``states.png``, ``wip.png``)
+    into `run_dir`.
 
     Everything is read from the files there; nothing is re-run.
 
@@ -966,8 +1188,8 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
     ----------
     run_dir:
         A run directory written by `fleet run` (``trajectories.csv`` required; ``caps.csv``,
-        ``tasks.csv``, ``events.csv``, ``jobs.csv`` optional; ``summary.json`` required when
-        `floor` is None).
+        ``tasks.csv``, ``events.csv``, ``jobs.csv``, ``attempts.csv`` optional;
+        ``summary.json`` required when `floor` is None).
     floor:
         The run's floor; None loads the map named in ``summary.json``.
     robots:
@@ -977,7 +1199,8 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
     Returns
     -------
     list of Path
-        The three PNG files: trajectory, speed, Gantt.
+        The PNG files: trajectory, speed, Gantt, then ``states.png`` and ``wip.png`` when the
+        run directory has ``states.csv`` and ``wip.csv`` (`fleet.view.kpi_figures`).
 
     Raises
     ------
@@ -988,7 +1211,14 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
     out = [run.run_dir / TRAJECTORY_PNG, run.run_dir / SPEED_PNG, run.run_dir / GANTT_PNG]
     figures = [
         trajectory_figure(run.floor, run.tracks, robots=robots, title=run.title),
-        speed_figure(run.tracks, run.caps, robots=robots, title=run.title, t_end=run.t_end),
+        speed_figure(
+            run.tracks,
+            run.caps,
+            robots=robots,
+            title=run.title,
+            t_end=run.t_end,
+            attempts=run.attempts,
+        ),
         gantt_figure(
             run.tasks,
             run.events,
@@ -996,14 +1226,38 @@ def save_run_figures(run_dir: Path, floor: Floor | None = None, *, robots: int =
             robots=list(run.tracks),
             t_end=run.t_end,
             title=run.title,
+            attempts=run.attempts,
         ),
     ]
     for fig, path in zip(figures, out, strict=True):
         fig.savefig(path, dpi=_DPI)
-    return out
+    # states.png and wip.png, when the run directory has their CSVs.
+    return out + save_kpi_figures(run.run_dir, title=run.title, t_end=run.t_end)
 
 
 # -- helpers ----------------------------------------------------------------------------------
+def _suffix(job: str, attempt: int) -> str:
+    """A gid's job part: the job for its first attempt, ``job:attempt`` for later ones."""
+    return job if attempt == 1 else f"{job}:{attempt}"
+
+
+def _scrapped_handles(scrapped: bool, handed_back: bool, *, line: bool = False) -> list[Any]:
+    """Legend entries for scrapped prints and hand-backs, when the figure shows any."""
+    out: list[Any] = []
+    if scrapped:
+        out.append(
+            Patch(facecolor=SCRAPPED_COLOUR, edgecolor="0.4", hatch="////", label="print scrapped")
+        )
+    if handed_back:
+        style = (
+            {"color": _HANDBACK_COLOUR, "ls": ":"}
+            if line
+            else {"ls": "none", "marker": "X", "mfc": _HANDBACK_COLOUR, "mec": "white"}
+        )
+        out.append(Line2D([], [], label="handed back", **style))
+    return out
+
+
 def _figure(size: tuple[float, float]) -> Figure:
     fig = Figure(figsize=size, layout="constrained")
     FigureCanvasAgg(fig)  # attaches itself: savefig renders with Agg, no pyplot involved

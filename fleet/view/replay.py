@@ -12,7 +12,10 @@ the controls, at the largest scale that shows the whole floor. It draws speed zo
 colours of `fleet.view.figures.zone_colours`, obstacles, the clearance band, rough floor,
 labelled stations and a scale bar; each robot as a filled circle of its radius in its own
 colour with a velocity tick, its planned horizon (``plans.csv``) as a thin dashed line, and its
-job state (idle, to station, printing, arrived and waiting for the print) as a ring and a label.
+job state (idle, to station, printing, arrived and waiting for the print) as a ring and a label;
+a print that its robot will hand back (scrapped, ``attempts.csv``) has a dashed ring, and a red
+cross marks where a robot handed a job back, for `HANDBACK_MARK_S` simulated seconds after;
+with ``[battery]`` the side panel also shows each robot's charge and whether it is charging.
 Labels never overlap: each is tried at several places around its robot, robots close together
 share one label, and a label with no free place is shortened, then left out. The side panel
 holds the robots and the jobs with their state at the current time, and the legend. Controls:
@@ -22,7 +25,10 @@ The page is scriptable, for tests and for people: it reads ``#t=SECONDS`` from i
 and on every hash change, and exposes ``window.replaySeek(t)``, ``replayTime()``,
 ``replayView()`` (the world-to-pixel map in use: `View`'s fields plus the canvas's ``left`` and
 ``top`` in the page and the ``area`` it was fitted into), ``replayLabels()`` (the label
-rectangles drawn, in canvas pixels) and ``replayScaleBar()``. The map is `view_transform`
+rectangles drawn, in canvas pixels), ``replayScaleBar()``, ``replayStates()`` (each robot's
+state ``{key, text}`` and each shown job's state text, as the side panel shows them) and
+``replayHandbacks()`` (the hand-back crosses drawn: robot, job, attempt, t and canvas x, y).
+The map is `view_transform`
 mirrored in the script, so a test can recompute it from the area the page reports. Positions
 between two embedded samples are interpolated linearly; samples are thinned by `simplify` so
 that this interpolation stays within a tolerance (1 cm by default) of every recorded sample.
@@ -59,6 +65,7 @@ __all__ = [
     "REPLAY_HTML",
     "ROBOT_COLOURS",
     "DEFAULT_RADIUS_M",
+    "HANDBACK_MARK_S",
     "VIEW_MARGIN_PX",
     "View",
     "Plan",
@@ -89,6 +96,8 @@ ROBOT_COLOURS: tuple[str, ...] = (
 )
 #: Robot radius (m) drawn when neither the summary nor the map gives one.
 DEFAULT_RADIUS_M = 0.4
+#: How long (simulated s) the page marks the spot where a robot handed a job back.
+HANDBACK_MARK_S = 10.0
 #: Pixels the page keeps free around the floor (`view_transform`'s default, sent to the page).
 VIEW_MARGIN_PX = 20
 
@@ -267,9 +276,13 @@ def replay_data(
     ``rough``, ``stations`` [{``name``, ``kind``, ``x``, ``y``}], ``clearance``; polygons are
     lists of rings, a ring a flat ``[x0, y0, x1, y1, ...]`` list), ``kinds`` (kind -> colour),
     ``v_max`` (m/s, for the velocity tick), ``robots`` [{``id``, ``colour``, ``radius``, ``t``,
-    ``x``, ``y``, ``plans`` {``sent``, ``pts``}, ``tasks`` [[start, end, kind, job]]}] and
-    ``jobs`` [{``id``, ``part``, ``station``, ``robot``, ``released``, ``assigned``, ``arrived``,
-    ``print_end``, ``delivered``, ``due``, ``outcome``}] (None: not happened).
+    ``x``, ``y``, ``plans`` {``sent``, ``pts``}, ``tasks`` [[start, end, kind, job, attempt,
+    scrapped]]}], ``jobs`` [{``id``, ``part``, ``station``, ``robot``, ``released``,
+    ``assigned``, ``arrived``, ``print_end``, ``delivered``, ``due``, ``outcome``}] (None: not
+    happened), ``attempts`` [{``job``, ``attempt``, ``robot``, ``assigned``, ``ended``,
+    ``result``, ``reason``, ``printed``, ``scrapped``}] (every robot's try at a job, from
+    ``attempts.csv``; empty for a run written without it) and ``handback_mark_s``; with
+    ``[battery]`` each robot also has ``battery`` {``t``, ``charge``, ``state``} (battery.csv).
     """
     floor = run.floor
     view_transform(floor.bounds)  # bad bounds fail here, with a message, not in the browser
@@ -307,13 +320,18 @@ def replay_data(
                     "pts": [_round(p.samples.reshape(-1), 2) for p in mine],
                 },
                 "tasks": [
-                    [round(k.start_s, 3), round(k.end_s, 3), k.kind, k.job]
+                    [round(k.start_s, 3), round(k.end_s, 3), k.kind, k.job, k.attempt, k.scrapped]
                     for k in run.tasks
                     if k.robot == rid
                 ],
                 "broken": _broken(run, rid),
             }
         )
+
+    battery = _battery(run.run_dir / "battery.csv")
+    for robot in robots:  # [battery]: charge and state over time, for the side panel
+        if robot["id"] in battery:
+            robot["battery"] = battery[robot["id"]]
 
     times = [float(tr.t[0]) for tr in run.tracks.values() if len(tr.t)]
     v_max = max((max(r.v_max) for r in floor.regions), default=1.0)
@@ -343,6 +361,21 @@ def replay_data(
         "v_max": v_max,
         "robots": robots,
         "jobs": _jobs(run),
+        "attempts": [
+            {
+                "job": a.job,
+                "attempt": a.attempt,
+                "robot": a.robot,
+                "assigned": a.assigned_s,
+                "ended": a.ended_s,
+                "result": a.result,
+                "reason": a.reason,
+                "printed": round(a.printed_s, 3),
+                "scrapped": a.scrapped,
+            }
+            for a in run.attempts
+        ],
+        "handback_mark_s": HANDBACK_MARK_S,
     }
 
 
@@ -384,7 +417,7 @@ def write_replay(
     run_dir:
         A run directory written by `fleet run`: ``trajectories.csv`` and (unless `floor` is
         given) ``summary.json`` required; ``plans.csv``, ``tasks.csv`` (else ``caps.csv``),
-        ``events.csv`` and ``jobs.csv`` used when present.
+        ``events.csv``, ``jobs.csv`` and ``attempts.csv`` used when present.
     out:
         The HTML file to write; None: ``run_dir / "replay.html"``.
     floor:
@@ -457,6 +490,21 @@ def _broken(run: RunData, robot: str) -> list[list[float | None]]:
         elif e.event == "repaired" and spans and spans[-1][1] is None:
             spans[-1][1] = round(e.t, 3)
     return spans
+
+
+def _battery(path: Path) -> dict[str, dict[str, list[Any]]]:
+    """battery.csv by robot: ``{t, charge, state}`` lists (absent file: no batteries)."""
+    out: dict[str, dict[str, list[Any]]] = {}
+    if not path.is_file():
+        return out
+    for line, row in read_csv_rows(path, ("t", "robot", "charge", "state")):
+        mine = out.setdefault(row["robot"], {"t": [], "charge": [], "state": []})
+        mine["t"].append(round(csv_number(path, line, "t", row["t"], finite=True), 3))
+        mine["charge"].append(
+            round(csv_number(path, line, "charge", row["charge"], finite=True), 4)
+        )
+        mine["state"].append(row["state"])
+    return out
 
 
 def _jobs(run: RunData) -> list[dict[str, Any]]:

@@ -229,11 +229,36 @@ function positionAt(r, t) {
   return { x: r.x[i] + f * (r.x[i + 1] - r.x[i]), y: r.y[i] + f * (r.y[i + 1] - r.y[i]), vx, vy };
 }
 
+// Every robot's try at a job (attempts.csv): a job handed back has one per robot that held it.
+// A run written without attempts has one per job, from its story.
+const ATTEMPTS = D.attempts || [];
+const HANDBACK_MARK_S = D.handback_mark_s || 10;
+const jobById = new Map(D.jobs.map((j) => [j.id, j]));
+for (const j of D.jobs) j.attempts = [];
+for (const a of ATTEMPTS) { const j = jobById.get(a.job); if (j) j.attempts.push(a); }
+const HANDBACKS = ATTEMPTS.filter((a) => a.scrapped && a.ended !== null);
+
 for (const r of D.robots) {
-  r.jobs = D.jobs.filter((j) => j.robot === r.id && j.assigned !== null);
+  if (ATTEMPTS.length) {
+    // Each spell the robot held a job; the job's arrival and print end are the attempt's own
+    // only when it is the one that delivered (or was still under way).
+    r.jobs = ATTEMPTS.filter((a) => a.robot === r.id).map((a) => {
+      const j = jobById.get(a.job) || {};
+      const own = !a.scrapped;
+      const ends = r.tasks.filter((k) => k[3] === a.job && (k[4] || 1) === a.attempt)
+        .map((k) => k[1]);
+      return { id: a.job, station: j.station || null, assigned: a.assigned,
+        delivered: a.ended, arrived: own ? (j.arrived ?? null) : null,
+        print_end: ends.length ? Math.max(...ends) : (own ? (j.print_end ?? null) : null),
+        attempt: a.attempt, scrapped: a.scrapped, result: a.result, reason: a.reason };
+    });
+  } else {
+    r.jobs = D.jobs.filter((j) => j.robot === r.id && j.assigned !== null);
+  }
+  r.handbacks = HANDBACKS.filter((a) => a.robot === r.id);
 }
 
-const BROKEN = "#d62728";
+const BROKEN = "#7b3294";  // purple: red marks hand-backs
 
 function stateAt(r, t) {
   const down = (r.broken || []).find((b) => b[0] <= t && (b[1] === null || t < b[1]));
@@ -242,21 +267,39 @@ function stateAt(r, t) {
     return { key: "broken", text: "broken down" + until, ring: BROKEN };
   }
   const job = r.jobs.find((j) => j.assigned <= t && (j.delivered === null || t < j.delivered));
-  if (!job) return { key: "idle", text: "idle", ring: null };
+  if (!job) {
+    const hb = r.handbacks.find((a) => a.ended <= t && t < a.ended + HANDBACK_MARK_S);
+    if (hb) return { key: "handed_back", ring: null, mark: hb.ended,
+      text: "handed back " + hb.job + " (" + (hb.reason || hb.result) + ")" };
+    return { key: "idle", text: "idle", ring: null };
+  }
   const to = job.station || "station";
   const task = r.tasks.find((k) => k[0] <= t && t < k[1]);
   const kind = task ? task[2] : null;
   const kindColour = kind ? (D.kinds[kind] || D.kinds.other) : null;
+  // A print its robot will hand back: the part is scrapped (dashed ring).
+  const scrap = job.scrapped ? ", scrapped at " + job.delivered.toFixed(1) + " s" : "";
   if (job.arrived !== null && job.arrived <= t) {
     if (job.print_end !== null && t < job.print_end) {
       const what = kind ? " (" + kind + ")" : "";
-      return { key: "waiting", text: "at " + to + ", waiting for print" + what,
-        ring: kindColour || "#b8860b" };
+      return { key: "waiting", text: "at " + to + ", waiting for print" + what + scrap,
+        ring: kindColour || "#b8860b", dashed: !!job.scrapped };
     }
     return { key: "arrived", text: "at " + to, ring: "#555555" };
   }
-  if (task) return { key: "printing", text: "printing " + kind + ", to " + to, ring: kindColour };
+  if (task) return { key: "printing", text: "printing " + kind + ", to " + to + scrap,
+    ring: kindColour, dashed: !!job.scrapped };
   return { key: "to", text: "to " + to, ring: C.station };
+}
+
+// [battery] runs: the charge (interpolated between battery.csv samples) and what it is doing.
+function batteryAt(r, t) {
+  const b = r.battery, i = b ? bisect(b.t, t) : -1;
+  if (i < 0) return "";
+  const j = Math.min(i + 1, b.t.length - 1), span = b.t[j] - b.t[i];
+  const share = span > 0 ? b.charge[i] + (b.charge[j] - b.charge[i]) * (t - b.t[i]) / span : b.charge[i];
+  const st = b.state[i] === "working" ? "" : ", " + b.state[i].replace("_", " ");
+  return " [battery " + Math.round(100 * share) + " %" + st + "]";
 }
 
 function planAt(r, t) {
@@ -266,6 +309,7 @@ function planAt(r, t) {
 
 // -- drawing a frame ---------------------------------------------------------------------------
 let labels = [];  // what drawLabels drew last
+let marks = [];  // the hand-back crosses drawFrame drew last
 
 function radiusPx(r) { return Math.max(r.radius * V.scale, 4); }
 
@@ -383,9 +427,11 @@ function drawFrame(t) {
     ctx.strokeStyle = "#ffffff"; ctx.lineWidth = 1; ctx.stroke();
     if (s.ring) {
       ctx.beginPath(); ctx.arc(x, y, rad + 2.5, 0, 2 * Math.PI);
+      ctx.setLineDash(s.dashed ? [3, 3] : []);
       ctx.strokeStyle = s.ring; ctx.lineWidth = 2; ctx.stroke();
+      ctx.setLineDash([]);
     }
-    if (s.key === "broken") {  // a cross over a broken-down robot
+    if (s.key === "broken") {  // a purple cross over a broken-down robot
       const d = rad * 0.7;
       ctx.beginPath(); ctx.moveTo(x - d, y - d); ctx.lineTo(x + d, y + d);
       ctx.moveTo(x + d, y - d); ctx.lineTo(x - d, y + d);
@@ -398,6 +444,20 @@ function drawFrame(t) {
       ctx.moveTo(x + ux * (rad + 3.5), y + uy * (rad + 3.5));
       ctx.lineTo(x + ux * (rad + 3.5 + len), y + uy * (rad + 3.5 + len));
       ctx.strokeStyle = "#111111"; ctx.lineWidth = 2; ctx.stroke();
+    }
+  }
+  // A red cross where each robot handed a job back, for HANDBACK_MARK_S after.
+  marks = [];
+  for (const { r } of now) {
+    for (const a of r.handbacks) {
+      if (!(a.ended <= t && t < a.ended + HANDBACK_MARK_S)) continue;
+      const p = positionAt(r, a.ended);
+      if (!p) continue;
+      const x = px(p.x), y = py(p.y), e = Math.max(5, radiusPx(r) * 0.8);
+      ctx.beginPath(); ctx.moveTo(x - e, y - e); ctx.lineTo(x + e, y + e);
+      ctx.moveTo(x + e, y - e); ctx.lineTo(x - e, y + e);
+      ctx.strokeStyle = "#b00000"; ctx.lineWidth = 3; ctx.stroke();
+      marks.push({ robot: r.id, job: a.job, attempt: a.attempt, t: a.ended, x, y });
     }
   }
   drawLabels(now);
@@ -424,6 +484,10 @@ if (F.stations.length) legendItem(C.station, "station");
 for (const k in D.kinds) legendItem(D.kinds[k], "printing " + k, true);
 legendItem(C.station, "to a station", true);
 legendItem("#b8860b", "waiting for print", true);
+if (HANDBACKS.length) {
+  legendItem("#777777", "print to be scrapped (dashed ring)", true);
+  legendItem("#b00000", "handed back (red cross)");
+}
 if (D.robots.some((r) => r.broken && r.broken.length)) legendItem(BROKEN, "broken down", true);
 
 const robotList = document.getElementById("robots");
@@ -450,25 +514,44 @@ const jobRows = D.jobs.map((j) => {
 
 function jobState(j, t) {
   if (j.released !== null && t < j.released) return null;
-  if (j.assigned === null || t < j.assigned) return ["open", "st-open"];
-  if (j.delivered === null || t < j.delivered) return ["assigned", "st-assigned"];
+  if (j.attempts.length) {
+    let last = null;
+    for (const a of j.attempts) if (a.assigned <= t) last = a;
+    if (!last) return ["open", "st-open"];
+    if (last.ended === null || t < last.ended) {
+      return [last.attempt > 1 ? "assigned (attempt " + last.attempt + ")" : "assigned",
+        "st-assigned"];
+    }
+    const why = " (" + (last.reason || last.result) + ")";
+    if (last.result === "failed") return ["failed" + why, "st-bad"];
+    if (last.result === "handed_back") return ["handed back" + why, "st-open"];
+  } else {
+    if (j.assigned === null || t < j.assigned) return ["open", "st-open"];
+    if (j.delivered === null || t < j.delivered) return ["assigned", "st-assigned"];
+  }
   const late = j.due !== null && j.delivered > j.due ? ", late" : "";
   const bad = (j.outcome && j.outcome !== "good") || late;
   return ["delivered" + (j.outcome ? " (" + j.outcome + late + ")" : late ? " (late)" : ""),
     bad ? "st-bad" : "st-delivered"];
 }
 
+let states = {};  // what updatePanel showed last: robot and job states
+
 function updatePanel(t, now) {
-  now.forEach(({ s }, i) => {
-    if (robotText[i].textContent !== s.text) {
-      robotText[i].textContent = s.text;
+  states = { robots: {}, jobs: {} };
+  now.forEach(({ r, s }) => { states.robots[r.id] = { key: s.key, text: s.text }; });
+  now.forEach(({ r, s }, i) => {
+    const text = s.text + batteryAt(r, t);
+    if (robotText[i].textContent !== text) {
+      robotText[i].textContent = text;
       robotText[i].className = s.key === "idle" ? "st-idle" : "st-assigned";
     }
   });
   let shown = 0, open = 0, done = 0;
   for (const row of jobRows) {
     const st = jobState(row.j, t);
-    if (st) { shown++; if (st[1] === "st-open") open++; else if (st[0] !== "assigned") done++; }
+    if (st) { shown++; if (st[1] === "st-open") open++; else if (st[0].startsWith("deliv")) done++; }
+    if (st) states.jobs[row.j.id] = st[0];
     const key = st ? st.join("|") : "hidden";
     if (key === row.last) continue;  // touch the DOM only when a job changes state
     row.last = key;
@@ -541,6 +624,8 @@ window.replayTime = () => current;
 window.replayView = () => copy(V);
 window.replayLabels = () => copy(labels);
 window.replayScaleBar = () => copy(scaleBar);
+window.replayStates = () => copy(states);
+window.replayHandbacks = () => copy(marks);
 layout();
 const start = hashTime();
 seek(start === null ? D.t0 : start);
