@@ -372,3 +372,16 @@ def test_the_replay_marks_a_broken_down_robot(tmp_path):
     x, y = np.array(view.pixel(*position(load_tracks(run / "trajectories.csv")["r01"], 60.0)))
     centre = imread(shot)[int(y + top), int(x + left), :3]
     assert np.abs(centre - rgb("#7b3294")).max() < 0.1, centre  # the purple cross over its disk
+
+
+def test_time_broken_down_is_the_faulted_share_of_the_robot_states():
+    # The per-robot state shares (fleet.engine.activity) count a broken-down robot as faulted,
+    # step by step: their faulted seconds are its repair time, to within a control period.
+    world = default_run(600.0, BreakdownsConfig(mtbf_s=150.0, mttr_s=90.0))
+    s = world.result.summary
+    period = 0.25
+    for entry in s["breakdowns"]["per_robot"]:
+        states = s["states"]["robots"][entry["id"]]
+        assert abs(states["faulted"]["seconds"] - entry["repair_s"]) <= period + 1e-9
+        assert sum(v["seconds"] for v in states.values()) == pytest.approx(600.0)
+    assert s["breakdowns"]["repair_s"] > 300.0  # not vacuous
