@@ -376,12 +376,14 @@ def test_the_replay_marks_a_broken_down_robot(tmp_path):
 
 def test_time_broken_down_is_the_faulted_share_of_the_robot_states():
     # The per-robot state shares (fleet.engine.activity) count a broken-down robot as faulted,
-    # step by step: their faulted seconds are its repair time, to within a control period.
+    # step by step: their faulted seconds are its repair time, to within a control period per
+    # breakdown (each one starts and ends between two ticks).
     world = default_run(600.0, BreakdownsConfig(mtbf_s=150.0, mttr_s=90.0))
     s = world.result.summary
     period = 0.25
     for entry in s["breakdowns"]["per_robot"]:
         states = s["states"]["robots"][entry["id"]]
-        assert abs(states["faulted"]["seconds"] - entry["repair_s"]) <= period + 1e-9
+        slack = period * max(1, entry["breakdowns"]) + 1e-9
+        assert abs(states["faulted"]["seconds"] - entry["repair_s"]) < slack
         assert sum(v["seconds"] for v in states.values()) == pytest.approx(600.0)
     assert s["breakdowns"]["repair_s"] > 300.0  # not vacuous
