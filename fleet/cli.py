@@ -1045,6 +1045,16 @@ def _kpi_table(console: Console, s: dict) -> None:
             ),
             ("commands later than their period", str(latency["late"])),
         ]
+    breakdowns = s.get("breakdowns") or {}
+    if breakdowns.get("configured"):
+        rows[-1:-1] = [
+            (
+                "availability / breakdowns / repair",
+                f"{100 * breakdowns['availability']:.1f} % / {breakdowns['breakdowns']} / "
+                f"{breakdowns['repair_s']:.0f} s",
+            ),
+            ("jobs handed back by breakdowns", str(breakdowns["jobs_handed_back"])),
+        ]
     battery = s.get("battery")
     if battery:  # [battery]: the fleet's time at the chargers, and robots that ran flat
         rows[-1:-1] = [

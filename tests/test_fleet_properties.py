@@ -17,7 +17,14 @@ from fleet.engine import World
 from fleet.errors import NoPathError, ScenarioError
 from fleet.paths import PathPlanner
 from fleet.plugins import load_dispatcher
-from fleet.scenario import JobsConfig, PluginChoice, RobotsConfig, Scenario, ScriptedJob
+from fleet.scenario import (
+    BreakdownsConfig,
+    JobsConfig,
+    PluginChoice,
+    RobotsConfig,
+    Scenario,
+    ScriptedJob,
+)
 from tests.test_properties import random_floor
 
 
@@ -113,4 +120,55 @@ def test_mpc_robots_never_collide_on_random_floors(floor, gap):
     assert s["violations"]["obstacle"] == 0, result.safety.examples
     assert s["violations"]["speed_zone"] == 0, result.safety.examples
     assert s["jobs"]["accounted"]
+    assert s["distance_m"] >= 1.0
+
+
+@settings(
+    max_examples=40, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+@given(
+    floor=random_floor(),
+    robots=st.integers(2, 4),
+    mtbf=st.floats(5.0, 40.0),
+    mttr=st.floats(5.0, 40.0),
+    seed=st.integers(0, 1000),
+    gaps=st.lists(st.floats(0.0, 10.0), min_size=2, max_size=4),
+)
+def test_robots_never_collide_with_broken_down_ones(floor, robots, mtbf, mttr, seed, gaps):
+    # Robots break down at random on their way (braking where they are and standing there until
+    # repaired): the others keep clear of them, as of every robot.
+    a, b = floor.station("a"), floor.station("b")
+    try:
+        trip = PathPlanner(floor, 1.0, 0.5).path((a.x, a.y), (b.x, b.y))
+    except NoPathError:
+        assume(False)
+    assume(trip.length >= 3.0)
+    at, jobs = 0.0, []
+    for i, gap in enumerate(gaps):
+        at += gap
+        jobs.append(both_ways(at, i))
+    scenario = Scenario(
+        name="fleet-property-breakdowns",
+        source="<fleet property test>",
+        map=Path("<random floor>"),
+        duration_s=60.0 + 3.0 * trip.travel_time,
+        seed=seed,
+        robots=(RobotsConfig(count=robots, start=("a", "b"), radius=0.3),),
+        jobs=JobsConfig(mode="scripted", scripted=tuple(jobs)),
+        sensing_radius_m=5.0,
+        deadlock_after_s=10.0,
+        breakdowns=BreakdownsConfig(mtbf_s=mtbf, mttr_s=mttr),
+    )
+    try:
+        world = World(scenario, floor)
+    except ScenarioError:
+        assume(False)
+    result = world.run()
+    s = result.summary
+    assert s["violations"]["collision"] == 0, result.safety.examples
+    assert s["violations"]["obstacle"] == 0, result.safety.examples
+    assert s["violations"]["speed_zone"] == 0, result.safety.examples
+    assert s["jobs"]["accounted"]
+    # Not vacuous: robots broke down, and the others drove.
+    assert s["breakdowns"]["breakdowns"] >= 1
     assert s["distance_m"] >= 1.0

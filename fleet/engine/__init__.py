@@ -5,10 +5,10 @@ it needs passed in: `placement` (start spots, reachability checks), `motion` (th
 delayed inputs, turning in place), `jobs` (job records and where jobs come from), `lifecycle`
 (release, print start, arrival, delivery, judging), `dispatch` (assignments, auctions,
 hand-backs), `sensing` (observations, neighbours and their plans, priorities, deadlock watch),
-`rounds` (the bus round). `agents` runs the robot agents' processes; `safety` judges every step;
-`recorder` keeps what happened and writes the run directory, `summary` makes summary.json and
-the CSV rows from it. The engine may import every room below it (floor, paths, printing,
-scenario, plugins, bus), never study or view.
+`rounds` (the bus round), `breakdowns` (robots failing and repaired). `agents` runs the robot
+agents' processes; `safety` judges every step; `recorder` keeps what happened and writes the
+run directory, `summary` makes summary.json and the CSV rows from it. The engine may import
+every room below it (floor, paths, printing, scenario, plugins, bus), never study or view.
 """
 
 from fleet.engine.jobs import JobRecord, JobSource

@@ -243,7 +243,12 @@ class Dispatch:
         return declined
 
     def hand_back(
-        self, robot: RobotState, rec: JobRecord, reason: str, blocked: bool = False
+        self,
+        robot: RobotState,
+        rec: JobRecord,
+        reason: str,
+        blocked: bool = False,
+        counted: bool = True,
     ) -> None:
         """Take `rec` off `robot` and offer it again (or give up on it after too many tries).
 
@@ -252,7 +257,8 @@ class Dispatch:
         `Scenario.deadlock_after_s` (or `HANDBACK_HOLD_S`): what blocked it may have cleared by
         then, and it may take any other job at once. The job is offered again when that hold
         ends. A job handed back more than `[jobs] max_handbacks` times fails, so a job nobody
-        can deliver does not loop.
+        can deliver does not loop; a hand-back that is not `counted` (a breakdown: no fault of
+        the job's) does not count towards that.
 
         Any caller may hand a job back (the bus rounds for blocked robots and lost agents;
         breakdowns...): the attempt ends on the job's record (`JobRecord.attempts`) with
@@ -270,7 +276,8 @@ class Dispatch:
         # The caps the robot printed under stay on its record for the safety check.
         robot.past_caps.extend(rec.caps.window(-math.inf, t).pieces)
         # The attempt is kept, with what it printed (scrapped) and why it ended.
-        failing = rec.handbacks + 1 > self.scenario.jobs.max_handbacks
+        counts = rec.handbacks - rec.excused_handbacks + counted
+        failing = counted and counts > self.scenario.jobs.max_handbacks
         rec.end_attempt(t, "failed" if failing else "handed_back", reason)
         rec.robot = rec.assigned_s = rec.started_s = rec.arrived_s = rec.print_start_s = None
         rec.caps = CapSchedule()
@@ -278,6 +285,7 @@ class Dispatch:
         rec.turned_rad = 0.0
         rec.quality = None
         rec.handbacks += 1
+        rec.excused_handbacks += not counted
         if blocked:
             rec.handed_back_by.add(robot.id)
             hold = self.scenario.deadlock_after_s or HANDBACK_HOLD_S

@@ -96,8 +96,10 @@ class JobRecord:
     turned_rad: float = 0.0
     #: The predicted quality of the printed part, once the print has finished.
     quality: QualityPrediction | None = None
-    #: How often robots handed the job back (blocked, or their agent failed).
+    #: How often robots handed the job back (blocked, their agent failed, they broke down),
+    #: and how many of these do not count towards `[jobs] max_handbacks` (breakdowns).
     handbacks: int = 0
+    excused_handbacks: int = 0
     #: Robots that handed the job back as blocked.
     handed_back_by: set[str] = field(default_factory=set)
     #: Each robot that handed the job back as blocked, to the time until which it is not given

@@ -97,9 +97,11 @@ class MakeWay:
         self._looked: dict[str, tuple[float, tuple[str, ...]]] = {}
 
     def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
-        """Where `robot` heads now: its spot aside while it still holds one, else where its job
-        sends it, else its charger (`RobotState.charger_at`), else home (or nowhere, idle
-        without `return_home`)."""
+        """Where `robot` heads now: nowhere while broken down, its spot aside while it still
+        holds one, else where its job sends it, else its charger (`RobotState.charger_at`), else
+        home (or nowhere, idle without `return_home`)."""
+        if robot.broken:
+            return None  # broken down: it stays where it stopped
         aside = robot.aside
         if aside is not None and not self._still_needed(robot, aside, t):
             robot.aside = aside = None
@@ -171,7 +173,7 @@ class MakeWay:
             route = None
             found = []
             for o in self.robots.values():
-                if o is stuck or o.job is not None or o.faulted:
+                if o is stuck or o.job is not None or not o.in_service:
                     continue
                 if math.hypot(o.x - stuck.x, o.y - stuck.y) > LOOK_AHEAD_M:
                     continue
@@ -180,7 +182,7 @@ class MakeWay:
                 if route.distance(Point(o.x, o.y)) <= stuck.spec.radius + o.spec.radius + AWAY_M:
                     found.append(o.id)
             looked = self._looked[stuck.id] = (t, tuple(found))
-        return [o for rid in looked[1] if (o := self.robots[rid]).job is None and not o.faulted]
+        return [o for rid in looked[1] if (o := self.robots[rid]).job is None and o.in_service]
 
     # -- helpers --------------------------------------------------------------------------------
     def _still_needed(self, robot: RobotState, aside: Aside, t: float) -> bool:
@@ -190,7 +192,7 @@ class MakeWay:
         if t >= aside.until or job != aside.job:
             return False
         other = self.robots.get(aside.made_way_for)
-        if other is None or other.faulted or other.watched_goal != aside.their_goal:
+        if other is None or not other.in_service or other.watched_goal != aside.their_goal:
             return False
         gx, gy = aside.their_goal
         closer = math.hypot(gx - other.x, gy - other.y) < aside.their_gap - aside.passed_m

@@ -20,7 +20,11 @@ Output contract (extend it, never break it):
   {reason: count}, scrapped_print_s, scrapped_parts} (attempts handed back, as in
   attempts.csv), deadlocks (robots the deadlock watch found stalled), faults {agents_lost,
   agents_left, robots_orphaned, robots_rejoined}, jobs.attempts; for scripted (point-to-point)
-  runs also arrivals {robot: when it reached the destination of its last trip, s, or null}.
+  runs also arrivals {robot: when it reached the destination of its last trip, s, or null};
+  breakdowns {configured, mtbf_s, mttr_s, availability, breakdowns, repaired, repair_s,
+  mean_repair_s, jobs_handed_back, print_scrapped_s, per_robot [{id, availability, breakdowns,
+  repair_s, jobs_handed_back}]} (`fleet.engine.breakdowns`; over the whole run, warm-up
+  included; availability 1 without breakdowns).
   KPIs over time (`fleet.engine.kpis`, `fleet.engine.activity`): warmup_s (the scenario's;
   throughput_per_h, throughput_good_per_h, mean_lead_time_s and everything below leave out
   [0, warmup_s); the jobs counts cover the whole run), assign_wait_s and lead_time_s {n, mean,
@@ -34,9 +38,9 @@ Output contract (extend it, never break it):
   warm-up).
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
-  arrived, delivered, and deadlock, make_way, handed_back, failed, fault, rejoined; with
-  ``[battery]`` also charge_go, charge_start, charge_end, stranded, with the charger as the
-  station).
+  arrived, delivered, and deadlock, make_way, handed_back, failed, fault, rejoined, breakdown,
+  repaired; with ``[battery]`` also charge_go, charge_start, charge_end, stranded, with the
+  charger as the station).
 - ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
   predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
   printed); started/finished are the print's start and end (for a job with nothing to print,

@@ -4,8 +4,9 @@ A robot's process asks for its command (`BusRounds.request`); the first request 
 schedules the round after every robot due then has asked. The round runs a dispatch requested at
 this instant, brings the robots' jobs up to date, builds their observations from one snapshot,
 exchanges them (and the auction's announcements) with the agents, and applies the commands: a
-robot whose agent did not answer brakes, a command with a compute latency waits its turn. Then
-come what the round brought besides: hand-backs, agents lost, left or (re)joined, and bids.
+robot whose agent did not answer, or that has broken down, brakes, a command with a compute
+latency waits its turn. Then come what the round brought besides: hand-backs, agents lost,
+left or (re)joined, and bids.
 """
 
 from __future__ import annotations
@@ -87,9 +88,12 @@ class BusRounds:
         latency = self.latency
         for (robot, ev), obs in zip(pending, observations, strict=True):
             cmd = commands.get(robot.id)
+            if robot.broken:
+                cmd = None  # broken down: braked to rest whatever its controller says
+            elif cmd is None:
+                self.recorder.stats["commands_missing"] += 1
             from_controller = cmd is not None
             if cmd is None:
-                self.recorder.stats["commands_missing"] += 1
                 ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
                 cmd = Command(ax, ay, ControlStatus.ERROR)
                 robot.plan = robot.thinned_plan = ()  # braking, not following its plan

@@ -36,6 +36,9 @@ PROGRESS_M = 0.25
 BLOCKING_GAP_M = 1.0
 #: A robot going home that is stuck this close (m) to it asks idle robots to make way.
 HOME_REACH_M = 3.0
+#: A broken-down robot's priority is its rank plus this many times the fleet's size: above
+#: every robot in service (at most rank + 3 * size).
+BROKEN_RANKS = 4
 #: How long (s) a plan stays news: a neighbour whose latest plan ended longer ago than this is
 #: shown without one (assume it stays where it is).
 PLAN_STALE_S = 1.0
@@ -112,11 +115,14 @@ class Sensing:
         return out
 
     def _priorities(self, t: float) -> dict[str, int]:
-        """Each robot's priority now: robots freed from a deadlock first, then robots with a job,
-        then the rest; smaller ids first within each class (unique, higher goes first)."""
+        """Each robot's priority now: broken-down robots first (they cannot give way: every
+        controller keeps clear of them), then robots freed from a deadlock, then robots with a
+        job, then the rest; smaller ids first within each class (unique, higher goes first)."""
         n = len(self.robots)
         return {
-            r.id: r.rank + (2 * n if t < r.boosted_until else 0) + (n if r.job is not None else 0)
+            r.id: r.rank + BROKEN_RANKS * n
+            if r.broken
+            else r.rank + (2 * n if t < r.boosted_until else 0) + (n if r.job is not None else 0)
             for r in self.robots.values()
         }
 
@@ -132,7 +138,7 @@ class Sensing:
         `Scenario.deadlock_after_s` while other robots stand close is blocked by them; its
         observation names them (its controller routes round them) and its priority is raised."""
         after = self.scenario.deadlock_after_s
-        if goal is None or after is None or r.faulted:
+        if goal is None or after is None or not r.in_service:
             r.watched_goal, r.blockers, r.stalled = None, (), False
             return
         gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
@@ -180,7 +186,7 @@ class Sensing:
             o
             for o in near
             if asks
-            and not o.faulted
+            and o.in_service
             and (r.job is not None or priority[o.id] < priority[r.id])  # idle: one way only
             and (
                 o.job is None

@@ -28,6 +28,7 @@ import simpy
 from fleet.bus import AgentHost, Exchange
 from fleet.engine.activity import Activity
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
+from fleet.engine.breakdowns import Breakdowns
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
@@ -185,6 +186,8 @@ class World:
             self.dispatch,
         )
 
+        self.breakdowns = Breakdowns(self.env, scenario, self.robots, self.recorder, self.dispatch)
+
         self._ran = False
         #: The run's outcome once `run` has returned.
         self.result: RunResult | None = None
@@ -333,6 +336,7 @@ class World:
         self.env.process(self.lifecycle.release())
         for robot in self.robots.values():
             self.env.process(self._robot(robot))
+        self.breakdowns.start()
         if progress is not None or stop is not None:
             self.env.process(self._watch(progress, stop, duration))
         try:
@@ -395,6 +399,7 @@ class World:
             bus_stats=self.exchange.stats,
             activity=self.activity,
         )
+        summary["breakdowns"] = self.breakdowns.summary(float(self.env.now))
         if self.energy is not None:
             summary["battery"] = self.energy.summary(float(self.env.now))
         return RunResult(summary, safety, list(self.jobs))

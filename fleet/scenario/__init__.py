@@ -10,6 +10,7 @@ never the file.
 from fleet.scenario.reader import (
     REPO_ROOT,
     BatteryConfig,
+    BreakdownsConfig,
     BusConfig,
     JobsConfig,
     Latency,
@@ -36,6 +37,7 @@ __all__ = [
     "BusConfig",
     "BatteryConfig",
     "QualityConfig",
+    "BreakdownsConfig",
     "Scenario",
     "Latency",
     "parse_latency",

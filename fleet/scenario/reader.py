@@ -25,6 +25,7 @@ from fleet.errors import ScenarioError
 from fleet.printing import PrintSchedule, PrintTask
 from fleet.scenario.spec import (
     LATENCY_RULE,
+    BreakdownsTable,
     JobsTable,
     NonNegativeInt,
     Positive,
@@ -47,6 +48,7 @@ __all__ = [
     "BusConfig",
     "BatteryConfig",
     "QualityConfig",
+    "BreakdownsConfig",
     "Scenario",
     "Latency",
     "parse_latency",
@@ -196,6 +198,31 @@ class QualityConfig:
 
 
 @dataclass(frozen=True)
+class BreakdownsConfig:
+    """Random breakdowns (``[breakdowns]``): each robot runs for a time drawn with mean `mtbf_s`
+    (from the start, or from its last repair), breaks down, and is repaired where it stopped
+    after a time drawn with mean `mttr_s`.
+
+    `failures` is "exponential" or "fixed"; `repairs` "exponential", "lognormal" (coefficient
+    of variation `repair_cv`) or "fixed". `groups` holds one ``(mtbf_s, mttr_s)`` per robot
+    group, None where the group takes the table's value (empty: every group does). An
+    `mtbf_s` of 0 means no breakdowns.
+    """
+
+    mtbf_s: float
+    mttr_s: float
+    failures: str = "exponential"
+    repairs: str = "exponential"
+    repair_cv: float = 0.5
+    groups: tuple[tuple[float | None, float | None], ...] = ()
+
+    def for_group(self, index: int) -> tuple[float, float]:
+        """``(mtbf_s, mttr_s)`` of robot group `index` (an mtbf_s of 0: it never breaks down)."""
+        mtbf, mttr = self.groups[index] if self.groups else (None, None)
+        return (self.mtbf_s if mtbf is None else mtbf, self.mttr_s if mttr is None else mttr)
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A whole run description, validated."""
 
@@ -241,6 +268,9 @@ class Scenario:
     #: the run depends on the wall clock; a number: that many seconds for every controller
     #: command (reproducible). See docs/fleet.md "Compute latency".
     latency: Latency = None
+    #: Random breakdowns of robots (``[breakdowns]``; None: none). Drawn from streams of their
+    #: own, so switching them on changes no job arrival (`fleet.engine.breakdowns`).
+    breakdowns: BreakdownsConfig | None = None
     #: Start-up transient (s) the KPIs leave out (``[scenario] warmup_s``): throughput, lead
     #: times, waits and state shares are measured over [warmup_s, the run's end).
     warmup_s: float = 0.0
@@ -482,6 +512,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         if file.battery is None
         else BatteryConfig(**msgspec.structs.asdict(file.battery)),
         charging=PluginChoice(file.charging.name, file.charging.options),
+        breakdowns=_breakdowns(src, file.breakdowns, len(groups), raw.get("breakdowns")),
     )
     check_warmup(scenario)
     return scenario
@@ -650,6 +681,29 @@ def _scripted_job(src: str, i: int, job: ScriptedJobTable) -> ScriptedJob:
         part=job.part,
         via=tuple(job.via),
         shuttle=job.shuttle,
+    )
+
+
+def _breakdowns(
+    src: str, table: BreakdownsTable | None, groups: int, raw: Any
+) -> BreakdownsConfig | None:
+    """``[breakdowns]`` (`raw` as written), whose `groups` has one entry per robot group."""
+    if table is None:
+        return None
+    if table.groups and len(table.groups) != groups:
+        raise ScenarioError(
+            src,
+            "breakdowns.groups",
+            raw["groups"],
+            f"needs one entry per robot group ({groups}), in the order of the [[robots]] groups",
+        )
+    return BreakdownsConfig(
+        mtbf_s=table.mtbf_s,
+        mttr_s=table.mttr_s,
+        failures=table.failures,
+        repairs=table.repairs,
+        repair_cv=table.repair_cv,
+        groups=tuple((g.mtbf_s, g.mttr_s) for g in table.groups),
     )
 
 

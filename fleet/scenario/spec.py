@@ -37,6 +37,8 @@ __all__ = [
     "QualityTable",
     "FloorTable",
     "BusTable",
+    "BreakdownsTable",
+    "BreakdownGroupTable",
     "BatteryTable",
     "ChargingTable",
     "TaskKind",
@@ -207,7 +209,11 @@ class JobsTable(_Table, kw_only=True):
         list[str], Meta(description="Poisson jobs print one of these parts, drawn uniformly.")
     ] = []
     max_handbacks: Annotated[
-        NonNegativeInt, Meta(description="A job handed back more often than this is given up.")
+        NonNegativeInt,
+        Meta(
+            description="A job handed back more often than this is given up (hand-backs by "
+            "breakdowns not counted)."
+        ),
     ] = 3
 
 
@@ -294,6 +300,47 @@ class BusTable(_Table, kw_only=True):
     ] = 2 * 1024 * 1024
 
 
+class BreakdownGroupTable(_Table, kw_only=True):
+    """One entry of [breakdowns] groups: one [[robots]] group's own times (unset: the table's)."""
+
+    mtbf_s: Annotated[
+        NonNegative | None,
+        Meta(description="This group's mean time between failures (s); 0: it never breaks down."),
+    ] = None
+    mttr_s: Annotated[
+        Positive | None, Meta(description="This group's mean time to repair (s).")
+    ] = None
+
+
+class BreakdownsTable(_Table, kw_only=True):
+    """[breakdowns]: robots break down at random, stop where they are and are repaired there."""
+
+    mtbf_s: Annotated[
+        NonNegative,
+        Meta(
+            description="Mean time between failures per robot (s in service: from the start or "
+            "the last repair to the next failure); 0: no breakdowns."
+        ),
+    ]
+    mttr_s: Annotated[Positive, Meta(description="Mean time to repair (s).")]
+    failures: Annotated[
+        Literal["exponential", "fixed"],
+        Meta(description="Times between failures: exponential (memoryless) or fixed at mtbf_s."),
+    ] = "exponential"
+    repairs: Annotated[
+        Literal["exponential", "lognormal", "fixed"],
+        Meta(description="Repair times: exponential, lognormal (mean mttr_s) or fixed at mttr_s."),
+    ] = "exponential"
+    repair_cv: Annotated[
+        Positive,
+        Meta(description="Coefficient of variation (std / mean) of lognormal repair times."),
+    ] = 0.5
+    groups: Annotated[
+        list[BreakdownGroupTable],
+        Meta(description="One entry per [[robots]] group, in order, with that group's own times."),
+    ] = []
+
+
 class BatteryTable(_Table, kw_only=True):
     """[battery]: every robot's battery and its draw (absent: robots never run out)."""
 
@@ -357,6 +404,10 @@ class ScenarioFile(_Table, kw_only=True):
         BatteryTable | None, Meta(description="Robots' batteries; absent: they never run out.")
     ] = None
     charging: ChargingTable = msgspec.field(default_factory=ChargingTable)
+    breakdowns: Annotated[
+        BreakdownsTable | None,
+        Meta(description="Random breakdowns and repairs of robots (absent: none)."),
+    ] = None
 
 
 # -- what msgspec refused, restated ------------------------------------------------------------

@@ -116,6 +116,9 @@ KPI_COLUMNS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("violations_collision", ("violations", "collision")),
     ("solver_median_ms", ("solver", "median_ms")),
     ("solver_fallbacks", ("solver", "fallbacks")),
+    ("availability", ("breakdowns", "availability")),
+    ("breakdowns", ("breakdowns", "breakdowns")),
+    ("handed_back_breakdown", ("breakdowns", "jobs_handed_back")),
     ("digest", ("digest",)),
 )
 

@@ -324,6 +324,7 @@ def replay_data(
                     for k in run.tasks
                     if k.robot == rid
                 ],
+                "broken": _broken(run, rid),
             }
         )
 
@@ -475,6 +476,20 @@ def _radius(run: RunData) -> dict[str, float]:
         ):
             radius[entry["id"]] = float(entry["radius_m"])
     return radius
+
+
+def _broken(run: RunData, robot: str) -> list[list[float | None]]:
+    """When `robot` was broken down (``breakdown`` to ``repaired`` events; None: not repaired
+    by the end of the run), as ``[start, end]`` pairs for the page."""
+    spans: list[list[float | None]] = []
+    for e in run.events:
+        if e.robot != robot:
+            continue
+        if e.event == "breakdown":
+            spans.append([round(e.t, 3), None])
+        elif e.event == "repaired" and spans and spans[-1][1] is None:
+            spans[-1][1] = round(e.t, 3)
+    return spans
 
 
 def _battery(path: Path) -> dict[str, dict[str, list[Any]]]:

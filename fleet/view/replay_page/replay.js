@@ -258,7 +258,14 @@ for (const r of D.robots) {
   r.handbacks = HANDBACKS.filter((a) => a.robot === r.id);
 }
 
+const BROKEN = "#7b3294";  // purple: red marks hand-backs
+
 function stateAt(r, t) {
+  const down = (r.broken || []).find((b) => b[0] <= t && (b[1] === null || t < b[1]));
+  if (down) {
+    const until = down[1] === null ? "" : " (repaired at " + down[1].toFixed(0) + " s)";
+    return { key: "broken", text: "broken down" + until, ring: BROKEN };
+  }
   const job = r.jobs.find((j) => j.assigned <= t && (j.delivered === null || t < j.delivered));
   if (!job) {
     const hb = r.handbacks.find((a) => a.ended <= t && t < a.ended + HANDBACK_MARK_S);
@@ -424,6 +431,12 @@ function drawFrame(t) {
       ctx.strokeStyle = s.ring; ctx.lineWidth = 2; ctx.stroke();
       ctx.setLineDash([]);
     }
+    if (s.key === "broken") {  // a purple cross over a broken-down robot
+      const d = rad * 0.7;
+      ctx.beginPath(); ctx.moveTo(x - d, y - d); ctx.lineTo(x + d, y + d);
+      ctx.moveTo(x + d, y - d); ctx.lineTo(x - d, y + d);
+      ctx.strokeStyle = BROKEN; ctx.lineWidth = 2.5; ctx.stroke();
+    }
     const speed = Math.hypot(p.vx, p.vy);
     if (speed > 1e-3) {  // the velocity tick starts at the rim so the disk keeps its colour
       const ux = p.vx / speed, uy = -p.vy / speed, len = 5 + 12 * Math.min(1, speed / D.v_max);
@@ -475,6 +488,7 @@ if (HANDBACKS.length) {
   legendItem("#777777", "print to be scrapped (dashed ring)", true);
   legendItem("#b00000", "handed back (red cross)");
 }
+if (D.robots.some((r) => r.broken && r.broken.length)) legendItem(BROKEN, "broken down", true);
 
 const robotList = document.getElementById("robots");
 const robotText = D.robots.map((r) => {
