@@ -34,6 +34,13 @@ def plain_env(**extra: str) -> dict[str, str]:
     return env | extra
 
 
+def sigint_default() -> None:
+    """In a child, before it runs: Ctrl-C's default. A test suite started as a shell's
+    background job has SIGINT ignored, its children inherit that, and a Python started that way
+    keeps ignoring it, so the signal these tests send would be lost."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.fixture(autouse=True)
 def plain_console(monkeypatch):
     for name in ("FORCE_COLOR", "COLUMNS"):
@@ -197,6 +204,7 @@ def test_ctrl_c_stops_a_run_and_saves_it_marked_incomplete(tmp_path):
         text=True,
         env=plain_env(),
         cwd=REPO_ROOT,
+        preexec_fn=sigint_default,
     )
     assert proc.stdout is not None
     assert "robots on" in proc.stdout.readline()  # the World is built and running
@@ -226,6 +234,7 @@ def test_ctrl_c_stops_a_sweep_which_resumes_where_it_stopped(tmp_path, capsys):
         stderr=subprocess.PIPE,
         text=True,
         env=plain_env(),
+        preexec_fn=sigint_default,
     )
     results = out / "results.csv"
     deadline = time.monotonic() + 120
