@@ -20,7 +20,7 @@ from fleet.plugins import Neighbour, Observation, RobotSpec
 from fleet_plugins.mpc.fallback import braking_path
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
-__all__ = ["robots_to_avoid", "clear_of_neighbours", "outranks"]
+__all__ = ["robots_to_avoid", "clear_of_neighbours", "closest_approach", "outranks"]
 
 
 def robots_to_avoid(
@@ -61,13 +61,34 @@ def robots_to_avoid(
 
 def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:
     """Whether plan `p` (steps 0..N from now) keeps every neighbour's predicted disc out
-    of its own at steps 1..N (a fallback plan is checked before it is followed)."""
+    of its own from step 1 to step N, between the steps too (a fallback plan is checked
+    before it is followed)."""
     for n in obs.neighbours:
         centres = predict(n, obs.t, spec.period, len(p) - 1)
-        gap = np.hypot(*(p[1:] - centres[1:]).T)
-        if np.any(gap < spec.radius + float(n.radius) - 1e-9):
+        if closest_approach(p[1:], centres[1:]) < spec.radius + float(n.radius) - 1e-9:
             return False
     return True
+
+
+def closest_approach(p: np.ndarray, q: np.ndarray) -> float:
+    """The least distance between two robots moving in straight lines from sample to sample
+    of `p` and `q` (``(K, 2)``, the same instants), between the samples too.
+
+    Checking the samples alone lets two robots on one line pass through each other: head on
+    at 1 m/s each and 0.5 s steps, each sample of one falls midway between two of the other,
+    1.25 m apart, and the robots meet in between (found by the MPC fleet property test).
+    """
+    d = np.asarray(p, dtype=float) - np.asarray(q, dtype=float)  # their difference, per sample
+    if len(d) == 1:
+        return float(np.hypot(*d[0]))
+    d0, step = d[:-1], np.diff(d, axis=0)
+    length2 = np.einsum("ij,ij->i", step, step)
+    # The point of each segment of the difference nearest the origin (clamped to the segment).
+    s = np.divide(
+        -np.einsum("ij,ij->i", d0, step), length2, out=np.zeros_like(length2), where=length2 > 0
+    )
+    nearest = d0 + np.clip(s, 0.0, 1.0)[:, None] * step
+    return float(np.min(np.hypot(nearest[:, 0], nearest[:, 1])))
 
 
 def outranks(obs: Observation, other: Neighbour) -> bool:
