@@ -4,10 +4,12 @@ A robot needs keeping clear of when its predicted square can come within reach o
 (the reachable boxes, narrowed to the regions each step may use) and, with
 ``respect_priority``, it outranks this one wherever it is, and only when parked for the whole
 horizon or close (closer than two robots at full speed need to stop, plus a step each) if this
-one outranks it; a close one may carry on or stop to let this one pass, so the plan keeps clear
-of the box round both. The higher one thus keeps its course, and the lower one has a plan to
-avoid that does not move away as it yields (when both yield, both swerve alike and meet again:
-measured head-on). `separation` turns the chosen ones into rows.
+one outranks it. The higher one thus keeps its course unless the lower one is close (when
+both yielded at any distance, both swerved alike and met again: measured head-on). A moving
+robot may carry on with its plan or drop it at its next tick (to brake when its solve fails, or
+to re-plan, as this one does at the same time), so the plan keeps clear of the box round both
+its plan and its braking path; only a robot parked for the horizon is a plain square.
+`separation` turns the chosen ones into rows.
 """
 
 from __future__ import annotations
@@ -44,11 +46,14 @@ def robots_to_avoid(
         half = spec.radius + float(n.radius) + margin
         distance = math.hypot(n.x - obs.x, n.y - obs.y)
         ob = Obstacle.square(n.robot, centres, half, margin)
-        if respect_priority and outranks(obs, n) and not at_rest(centres):
-            if distance >= half + near:
-                continue  # it yields to this robot; this one keeps its course
-            # Close by: it may carry on with its plan or stop to let this one pass (it
-            # changes its plan as this one's changes): keep clear of both.
+        moving = not at_rest(centres)
+        if respect_priority and moving and outranks(obs, n) and distance >= half + near:
+            continue  # it yields to this robot; this one keeps its course
+        if moving:
+            # A moving robot may carry on with its plan, or drop it at its next tick to brake
+            # (a failed solve) or to re-plan: keep clear of the box round both, whichever robot
+            # yields (against its plan alone, a robot tailed the other 0.7 m behind and met it
+            # when that one braked; tests/test_mpc_contact.py).
             stop = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))
             stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
             ob = Obstacle.between(n.robot, centres, stop, half, margin)
