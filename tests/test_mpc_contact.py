@@ -8,7 +8,8 @@ twice: by the engine's safety checker (at the samples) and here, between the sam
 robots move in straight lines over a step, so the closest approach of their recorded
 trajectories is exact). Two fixes ended them: a fallback plan is checked between samples
 (`neighbours.clear_of_neighbours`), and a plan keeps clear of each moving robot's braking path
-as well as its plan (`neighbours.robots_to_avoid`).
+as well as its plan (`neighbours.robots_to_avoid`). The last, robots that see each other too
+late to stop, is left as a strict xfail.
 """
 
 from __future__ import annotations
@@ -297,3 +298,74 @@ def test_mpc_robot_whose_neighbour_drops_its_plan_to_brake_never_touches_it() ->
     assert summary["violations"]["collision"] == 0
     assert closest >= 2 * RADIUS
     assert summary["jobs"]["completed"] == 2  # not vacuous: both drove past each other
+
+
+def late_floor() -> Floor:
+    """Free exploration of the property test (seed 2, after both fixes): three machines, two
+    slow buffers; the robots meet head-on on a diagonal between machines m0 and m2."""
+    machines = {
+        "m0": "POLYGON ((23.1233658931404 7.9352751321848025, 20.897910619854464 "
+        "9.176647300239779, 19.969455855770555 10.71684057298723, 19.544141398484236 "
+        "9.611200926894009, 18.522463949373257 8.343145319831335, 19.78899524783593 "
+        "7.765478498260991, 20.29980468628719 7.457448902841658, 22.863981491179615 "
+        "6.804537421590273, 23.1233658931404 7.9352751321848025))",
+        "m1": "POLYGON ((10.088415428848815 6, 7.590453738281206 7.446991381756315, "
+        "5.7318411571755075 8.227825771186396, 5.917183284936064 6.376372092368816, "
+        "4.921459236823006 5.470664312593651, 6.56247676456313 4.003885094494992, "
+        "7.717071531513585 5.123488538450655, 10.088415428848815 6))",
+        "m2": "POLYGON ((26.417405489902855 7.357679988762819, 23.51747168418141 "
+        "10.021975050275973, 23.529474776983164 8.203002002709137, 26.417405489902855 "
+        "7.357679988762819))",
+    }
+    buffers = {
+        "buffer0": (
+            0.2,
+            "POLYGON ((23.609684724064977 5.582751765498282, 19.909902700435456 "
+            "6.524820251862482, 19.321772825379135 6.879475811902428, 16.935791032159518 "
+            "7.967725680253001, 18.667095213804068 10.116534951687704, 19.770249783802857 "
+            "12.984275296423954, 21.617139282889006 9.920510757709907, 24.26582210177335 "
+            "8.443059751240739, 23.609684724064977 5.582751765498282))",
+        ),
+        "buffer2": (
+            0.4,
+            "POLYGON ((22.53440670618657 7.45230806140825, 22.502334480709447 "
+            "12.312598211780081, 30 5.424167456391285, 30 5.267065067108618, "
+            "22.53440670618657 7.45230806140825))",
+        ),
+    }
+    return compile_floor(
+        FloorSpec(
+            source="<mpc contact: late>",
+            name="random",
+            boundary=box(0, 0, 30.0, 22.220363860995462),
+            default_v_max=(1.0, 1.0),
+            clearance=0.0,
+            obstacles=tuple(Obstacle(name, wkt.loads(poly)) for name, poly in machines.items()),
+            zones=tuple(
+                SpeedZone(name, wkt.loads(poly), (v, v)) for name, (v, poly) in buffers.items()
+            ),
+            stations=(
+                Station("a", 27.592695174568235, 1.4898049097640405, kind="depot"),
+                Station("b", 15.95296658478993, 21.220363860995462),
+            ),
+        )
+    )
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "issue 16, not fixed (late reaction): first seen 4.17 m apart at 39.5 s (5.48 m at "
+        "39.0 s), closing diagonally at 2.65 m/s; the lower robot brakes, the higher one keeps "
+        "its course one more step (its 'close' threshold, 0.7 + v_max^2/a_max + 2 v_max dt = "
+        "3.7 m, assumes 1 m/s along an axis; it goes at 1.3 m/s) and then brakes: 0.427 m at "
+        "41.5 s (both braking at once at 39.5 s: 0.928 m). Counting real speeds in that "
+        "threshold did not end it on this floor (the run changes; 0.553 m at 42.0 s); 5 m of "
+        "sensing (the scenario rule asks 3.6 m) leaves too little at 0.5 s ticks and "
+        "diagonal speeds (7 m: no contact in 240 examples)"
+    ),
+)
+def test_mpc_robots_that_see_each_other_late_on_a_diagonal_never_touch() -> None:
+    summary, closest = run_property_scenario(late_floor(), 3.488387418106415)
+    assert summary["violations"]["collision"] == 0
+    assert closest >= 2 * RADIUS
