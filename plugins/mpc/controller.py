@@ -75,14 +75,16 @@ class MPCController(Controller):
     (`separation`). The margin is soft (a heavy cost), contact is not. With
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
     on a tie, the smaller robot id), and of the robots it outranks only when they are parked
-    for the whole horizon or close (`neighbours` says why). At most ``max_neighbours`` robots,
-    the nearest, are constrained.
+    for the whole horizon or close (`neighbours` says why). A moving robot's square covers both
+    its plan and its braking path (it may drop its plan at its next tick). At most
+    ``max_neighbours`` robots, the nearest, are constrained.
 
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
     error) the controller falls back: the previous plan shifted by one step if the robot is on
-    it and it keeps clear of every neighbour's predicted position (it ends at rest, so it stays
-    safe to its end), else braking along the line of travel (with neighbours about, the
-    command's plan is then the braking path, so that they avoid it). It then plans a new trip.
+    it and it keeps clear of every neighbour's predicted position, between the steps too (it
+    ends at rest, so it stays safe to its end), else braking along the line of travel (with
+    neighbours about, the command's plan is then the braking path, so that they avoid it). It
+    then plans a new trip.
     Every command carries a `SolveReport`.
 
     Parameters

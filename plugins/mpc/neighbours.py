@@ -4,10 +4,12 @@ A robot needs keeping clear of when its predicted square can come within reach o
 (the reachable boxes, narrowed to the regions each step may use) and, with
 ``respect_priority``, it outranks this one wherever it is, and only when parked for the whole
 horizon or close (closer than two robots at full speed need to stop, plus a step each) if this
-one outranks it; a close one may carry on or stop to let this one pass, so the plan keeps clear
-of the box round both. The higher one thus keeps its course, and the lower one has a plan to
-avoid that does not move away as it yields (when both yield, both swerve alike and meet again:
-measured head-on). `separation` turns the chosen ones into rows.
+one outranks it. The higher one thus keeps its course unless the lower one is close (when
+both yielded at any distance, both swerved alike and met again: measured head-on). A moving
+robot may carry on with its plan or drop it at its next tick (to brake when its solve fails, or
+to re-plan, as this one does at the same time), so the plan keeps clear of the box round both
+its plan and its braking path; only a robot parked for the horizon is a plain square.
+`separation` turns the chosen ones into rows.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from fleet.plugins import Neighbour, Observation, RobotSpec
 from fleet_plugins.mpc.fallback import braking_path
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
-__all__ = ["robots_to_avoid", "clear_of_neighbours", "outranks"]
+__all__ = ["robots_to_avoid", "clear_of_neighbours", "closest_approach", "outranks"]
 
 
 def robots_to_avoid(
@@ -44,11 +46,14 @@ def robots_to_avoid(
         half = spec.radius + float(n.radius) + margin
         distance = math.hypot(n.x - obs.x, n.y - obs.y)
         ob = Obstacle.square(n.robot, centres, half, margin)
-        if respect_priority and outranks(obs, n) and not at_rest(centres):
-            if distance >= half + near:
-                continue  # it yields to this robot; this one keeps its course
-            # Close by: it may carry on with its plan or stop to let this one pass (it
-            # changes its plan as this one's changes): keep clear of both.
+        moving = not at_rest(centres)
+        if respect_priority and moving and outranks(obs, n) and distance >= half + near:
+            continue  # it yields to this robot; this one keeps its course
+        if moving:
+            # A moving robot may carry on with its plan, or drop it at its next tick to brake
+            # (a failed solve) or to re-plan: keep clear of the box round both, whichever robot
+            # yields (against its plan alone, a robot tailed the other 0.7 m behind and met it
+            # when that one braked; tests/test_mpc_contact.py).
             stop = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))
             stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
             ob = Obstacle.between(n.robot, centres, stop, half, margin)
@@ -61,13 +66,34 @@ def robots_to_avoid(
 
 def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:
     """Whether plan `p` (steps 0..N from now) keeps every neighbour's predicted disc out
-    of its own at steps 1..N (a fallback plan is checked before it is followed)."""
+    of its own from step 1 to step N, between the steps too (a fallback plan is checked
+    before it is followed)."""
     for n in obs.neighbours:
         centres = predict(n, obs.t, spec.period, len(p) - 1)
-        gap = np.hypot(*(p[1:] - centres[1:]).T)
-        if np.any(gap < spec.radius + float(n.radius) - 1e-9):
+        if closest_approach(p[1:], centres[1:]) < spec.radius + float(n.radius) - 1e-9:
             return False
     return True
+
+
+def closest_approach(p: np.ndarray, q: np.ndarray) -> float:
+    """The least distance between two robots moving in straight lines from sample to sample
+    of `p` and `q` (``(K, 2)``, the same instants), between the samples too.
+
+    Checking the samples alone lets two robots on one line pass through each other: head on
+    at 1 m/s each and 0.5 s steps, each sample of one falls midway between two of the other,
+    1.25 m apart, and the robots meet in between (found by the MPC fleet property test).
+    """
+    d = np.asarray(p, dtype=float) - np.asarray(q, dtype=float)  # their difference, per sample
+    if len(d) == 1:
+        return float(np.hypot(*d[0]))
+    d0, step = d[:-1], np.diff(d, axis=0)
+    length2 = np.einsum("ij,ij->i", step, step)
+    # The point of each segment of the difference nearest the origin (clamped to the segment).
+    s = np.divide(
+        -np.einsum("ij,ij->i", d0, step), length2, out=np.zeros_like(length2), where=length2 > 0
+    )
+    nearest = d0 + np.clip(s, 0.0, 1.0)[:, None] * step
+    return float(np.min(np.hypot(nearest[:, 0], nearest[:, 1])))
 
 
 def outranks(obs: Observation, other: Neighbour) -> bool:
