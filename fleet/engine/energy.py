@@ -33,7 +33,7 @@ from typing import Any
 import simpy
 
 from fleet.engine.dispatch import Dispatch
-from fleet.engine.motion import REST_SPEED, RobotState
+from fleet.engine.motion import RobotState, at_rest_near
 from fleet.engine.recorder import Recorder
 from fleet.errors import ScenarioError
 from fleet.floor import Floor
@@ -189,10 +189,11 @@ class Energy:
             if robot.job is not None:
                 self._release(robot, cell, t, "job")  # the policy let it work: a job came
                 return
-            if self.policy.leave(self.status(robot)):
+            status = self.status(robot)
+            if self.policy.leave(status):
                 self._release(robot, cell, t, "done")
                 return
-            self._set_off_duty(robot, not self.policy.takes_jobs(self.status(robot)))
+            self._set_off_duty(robot, not self.policy.takes_jobs(status))
             target = self.chargers[cell.due]  # type: ignore[index]
             if robot.charging and math.hypot(robot.x - target[0], robot.y - target[1]) > (
                 CHARGER_REACH_M
@@ -200,7 +201,7 @@ class Energy:
                 robot.charging = False  # moved off (making way): the charge pauses
                 self.recorder.event(t, "charge_end", "", robot.id, cell.due or "")
                 self._sample(robot, cell, t)
-            if not robot.charging and _at_rest_near(robot, target):
+            if not robot.charging and at_rest_near(robot, target, CHARGER_REACH_M):
                 robot.charging = True
                 cell.charges += 1
                 self.recorder.event(t, "charge_start", "", robot.id, cell.due or "")
@@ -313,11 +314,3 @@ class Energy:
             w.writerow(["t", "robot", "charge", "state"])
             for t, rid, share, state in self.samples:
                 w.writerow([f"{t:.3f}", rid, f"{share:.6f}", state])
-
-
-def _at_rest_near(robot: RobotState, goal: tuple[float, float]) -> bool:
-    return (
-        abs(robot.vx) <= REST_SPEED
-        and abs(robot.vy) <= REST_SPEED
-        and math.hypot(robot.x - goal[0], robot.y - goal[1]) <= CHARGER_REACH_M
-    )

@@ -431,10 +431,6 @@ def load_jobs(path: Path) -> tuple[JobRow, ...]:
     if not path.is_file():
         return ()
 
-    def number(line: int, row: dict[str, str], column: str) -> float | None:
-        text = row.get(column) or ""
-        return None if text.strip() == "" else csv_number(path, line, column, text)
-
     def text(row: dict[str, str], column: str) -> str | None:
         return row.get(column) or None
 
@@ -449,18 +445,24 @@ def load_jobs(path: Path) -> tuple[JobRow, ...]:
             JobRow(
                 id=row["id"],
                 robot=text(row, "robot"),
-                released_s=number(line, row, "released_s"),
-                started_s=number(line, row, "started_s"),
-                finished_s=number(line, row, "finished_s"),
-                delivered_s=number(line, row, "delivered_s"),
+                released_s=_optional_number(path, line, row, "released_s"),
+                started_s=_optional_number(path, line, row, "started_s"),
+                finished_s=_optional_number(path, line, row, "finished_s"),
+                delivered_s=_optional_number(path, line, row, "delivered_s"),
                 part=text(row, "part"),
-                due_s=number(line, row, "due_s"),
+                due_s=_optional_number(path, line, row, "due_s"),
                 outcome=text(row, "outcome"),
                 passed=None if passed_text == "" else passed_text == "true",
-                predicted_error_mm=number(line, row, "predicted_error_mm"),
+                predicted_error_mm=_optional_number(path, line, row, "predicted_error_mm"),
             )
         )
     return tuple(jobs)
+
+
+def _optional_number(path: Path, line: int, row: dict[str, str], column: str) -> float | None:
+    """`row`'s `column` as a number, None when the cell is empty or the column missing."""
+    text = row.get(column) or ""
+    return None if text.strip() == "" else csv_number(path, line, column, text)
 
 
 def load_attempts(path: Path) -> tuple[AttemptRow, ...]:
@@ -476,23 +478,19 @@ def load_attempts(path: Path) -> tuple[AttemptRow, ...]:
     if not path.is_file():
         return ()
 
-    def number(line: int, row: dict[str, str], column: str) -> float | None:
-        text = row.get(column) or ""
-        return None if text.strip() == "" else csv_number(path, line, column, text)
-
     return tuple(
         AttemptRow(
             job=row["job"],
             attempt=_attempt(path, line, row),
             robot=row["robot"],
             assigned_s=csv_number(path, line, "assigned_s", row["assigned_s"]),
-            ended_s=number(line, row, "ended_s"),
+            ended_s=_optional_number(path, line, row, "ended_s"),
             result=row["result"],
             reason=row.get("reason") or None,
-            started_s=number(line, row, "started_s"),
-            print_start_s=number(line, row, "print_start_s"),
-            printed_s=number(line, row, "printed_s") or 0.0,
-            scrapped_s=number(line, row, "scrapped_s") or 0.0,
+            started_s=_optional_number(path, line, row, "started_s"),
+            print_start_s=_optional_number(path, line, row, "print_start_s"),
+            printed_s=_optional_number(path, line, row, "printed_s") or 0.0,
+            scrapped_s=_optional_number(path, line, row, "scrapped_s") or 0.0,
         )
         for line, row in read_csv_rows(path, _ATTEMPT_COLUMNS)
     )
