@@ -22,7 +22,6 @@ runs are bit-identical to those of a build without batteries.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 from collections.abc import Mapping
@@ -34,7 +33,7 @@ import simpy
 
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.motion import RobotState, at_rest_near
-from fleet.engine.recorder import Recorder
+from fleet.engine.recorder import Recorder, write_rows
 from fleet.errors import ScenarioError
 from fleet.floor import Floor
 from fleet.plugins import BatteryStatus, Charger, ChargingPolicy
@@ -309,8 +308,5 @@ class Energy:
 
     def write(self, out: Path) -> None:
         """Write battery.csv: t, robot, charge (share of capacity), state."""
-        with open(Path(out) / BATTERY_CSV, "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow(["t", "robot", "charge", "state"])
-            for t, rid, share, state in self.samples:
-                w.writerow([f"{t:.3f}", rid, f"{share:.6f}", state])
+        rows = ((f"{t:.3f}", rid, f"{share:.6f}", state) for t, rid, share, state in self.samples)
+        write_rows(Path(out) / BATTERY_CSV, ("t", "robot", "charge", "state"), rows)

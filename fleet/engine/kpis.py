@@ -10,9 +10,7 @@ wait counts when its assignment came at or after it, a lead time when its delive
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Iterable, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,7 +24,6 @@ __all__ = [
     "time_mean",
     "spread",
     "job_kpis",
-    "write_rows",
     "wip_rows",
     "STATES_CSV",
     "WIP_CSV",
@@ -122,14 +119,6 @@ def job_kpis(
         "suggested_warmup_s": round(suggested, 6),
         "suggested_warmup_at_limit": at_limit,
     }
-
-
-def write_rows(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
-    """A CSV file with `header` and `rows`."""
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
 
 
 def wip_rows(events: Iterable[Event]) -> list[tuple[str, int, int]]:

@@ -78,7 +78,7 @@ import hashlib
 import json
 import math
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -97,6 +97,7 @@ __all__ = [
     "RUN_FILES",
     "ATTEMPT_COLUMNS",
     "JOB_COLUMNS",
+    "write_rows",
 ]
 
 #: Every file a run writes into its run directory (caps.csv and violations.csv only when
@@ -247,7 +248,7 @@ class Recorder:
             _write_jobs(out_dir / "jobs.csv", jobs)
         if attempts is not None:
             _write_dicts(out_dir / "attempts.csv", ATTEMPT_COLUMNS, attempts)
-        _write_rows(
+        write_rows(
             out_dir / "tasks.csv",
             ("robot", "job", "kind", "start_s", "end_s", "attempt"),
             [
@@ -255,7 +256,7 @@ class Recorder:
                 for r, j, k, a, b, n in map(_numbered(5), tasks or ())
             ],
         )
-        _write_rows(
+        write_rows(
             out_dir / "plans.csv",
             ("t_sent", "robot", "k", "t", "x", "y"),
             [
@@ -333,7 +334,8 @@ JOB_COLUMNS = (
 )
 
 
-def _write_rows(path: Path, header: tuple[str, ...], rows: list[tuple]) -> None:
+def write_rows(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
+    """A CSV file at `path` with `header` and `rows`."""
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(header)

@@ -32,12 +32,12 @@ from fleet.engine.breakdowns import Breakdowns
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
-from fleet.engine.kpis import STATES_CSV, WIP_CSV, wip_rows, write_rows
+from fleet.engine.kpis import STATES_CSV, WIP_CSV, wip_rows
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
 from fleet.engine.placement import Placement
-from fleet.engine.recorder import Recorder
+from fleet.engine.recorder import Recorder, write_rows
 from fleet.engine.rounds import BusRounds
 from fleet.engine.safety import SafetyReport
 from fleet.engine.sensing import Sensing
