@@ -98,3 +98,53 @@ def test_a_busy_fleets_observations_list_every_pairs_neighbours(monkeypatch):
     world.run()
     assert len(rounds) == 15.0 / sc.robots[0].period_s
     assert max(rounds) > 0  # robots saw each other
+
+
+def close_pairs_by_x(p, ids, radii, reach):
+    """The safety checker's earlier pass: sort by x, compare each robot with those after it
+    within reach in x."""
+    order = np.argsort(p[:, 0], kind="stable")
+    ps, idx = p[order], ids[order]
+    pairs = []
+    ends = np.searchsorted(ps[:, 0], ps[:, 0] + reach, side="right")
+    for i in np.flatnonzero(ends > np.arange(len(ps)) + 1):
+        sl = slice(i + 1, ends[i])
+        d = np.hypot(ps[sl, 0] - ps[i, 0], ps[sl, 1] - ps[i, 1])
+        for off in np.flatnonzero(d < radii[idx[i]] + radii[idx[sl]] - 1e-9):
+            pairs.append((int(idx[i]), int(idx[i + 1 + off]), float(d[off])))
+    return [(min(i, j), max(i, j), d) for i, j, d in pairs]
+
+
+@pytest.mark.parametrize("n", [300, 1000])
+def test_the_safety_checkers_tree_finds_the_contacts_in_the_same_order(n):
+    from fleet.engine.safety import _close_pairs
+
+    rng = np.random.default_rng(n)
+    # A crowded floor: many contacts, robots on the same x, some on the same spot.
+    p = rng.uniform(0.0, 12.0, size=(n, 2)).round(2)
+    ids = rng.permutation(n).astype(np.int64)
+    radii = rng.choice([0.3, 0.35, 0.4], size=n)
+    reach = 2.0 * float(radii.max())
+    want = close_pairs_by_x(p, ids, radii, reach)
+    assert len(want) > n  # the case is crowded
+    assert _close_pairs(p, ids, radii, reach) == want
+
+
+def test_kept_leg_times_are_the_computed_ones_and_cannot_be_spoilt():
+    from fleet.floor import load_floor
+    from fleet.paths.limits import SpeedLimits
+
+    floor = load_floor(load_scenario(REPO_ROOT / "scenarios" / "default.toml").map)
+    kept, fresh = SpeedLimits(floor, 1.0), SpeedLimits(floor, 1.0)
+    rng = np.random.default_rng(3)
+    P, Q = rng.uniform(0.0, 50.0, size=(18, 2)), rng.uniform(0.0, 50.0, size=(18, 2))
+    for _ in range(2):  # the second time from the cache
+        assert [kept.segment_time(p, q) for p, q in zip(P, Q, strict=True)] == [
+            fresh._segment_time(p, q) for p, q in zip(P, Q, strict=True)
+        ]
+        t, ok = kept.travel_times(P, Q)
+        t0, ok0 = fresh._travel_times(P, Q)
+        assert t.tobytes() == t0.tobytes() and (ok == ok0).all()
+        t[:] = -1.0  # a caller writing into its answer does not change the next one
+        ok[:] = False
+    assert len(kept._segment_times) == 18 and len(kept._batch_times) == 1
