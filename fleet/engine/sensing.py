@@ -252,18 +252,19 @@ class Sensing:
             MAX_NEIGHBOURS,
         )
         out = {}
-        plans: dict[str, tuple] = {}
+        # A robot looks the same to all who see it this instant: one (frozen) Neighbour each.
+        seen: dict[int, Neighbour] = {}
         for r, near_idx in zip(robots, found, strict=True):
             near = []
             for j in near_idx:
-                o = everyone[j]
-                if o.id not in plans:
-                    plans[o.id] = self._future_plan(o, t)
-                near.append(
-                    Neighbour(
-                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plans[o.id]
+                nb = seen.get(j)
+                if nb is None:
+                    o = everyone[j]
+                    plan = self._future_plan(o, t)
+                    nb = seen[j] = Neighbour(
+                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plan
                     )
-                )
+                near.append(nb)
             out[r.id] = tuple(near)
         return out
 
@@ -300,13 +301,17 @@ def nearest_within(
         # Cut a hair beyond the (k+1)-th distance (the point itself is one of the first k+1).
         kth = dist[:, k] if m > k else np.full(len(queries), np.inf)
         cut = np.minimum(kth * (1.0 + _SLACK), reach)
+        keep = dist <= cut[:, None]
+        # Ties reach past the m found where the last one is kept: ask for all within the cut.
+        full = keep[:, -1].tolist()
         near_of = []
-        for row, (i, c) in enumerate(zip(queries, cut.tolist(), strict=True)):
-            if dist[row, -1] <= c:
-                # Ties reach past the m found: ask for every point within the cut.
-                near_of.append(tree.query_ball_point((xs[i], ys[i]), c))
+        for row, (i, found_row, kept) in enumerate(
+            zip(queries, idx.tolist(), keep.tolist(), strict=True)
+        ):
+            if full[row]:
+                near_of.append(tree.query_ball_point((xs[i], ys[i]), float(cut[row])))
             else:
-                near_of.append(idx[row][dist[row] <= c].tolist())
+                near_of.append([j for j, ok in zip(found_row, kept, strict=True) if ok])
     out = []
     for i, near in zip(queries, near_of, strict=True):
         x0, y0 = xs[i], ys[i]
