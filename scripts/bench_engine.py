@@ -22,13 +22,19 @@ is the real-time factor (simulated seconds per wall second).
 
 Nothing here is asserted: the figures go in notes and the README.
 
+With ``--profile N`` each run goes under cProfile and its N top entries, by cumulative and by
+own time, are printed after it (docs/performance.md; the profiler's cost per Python call makes
+the figures above it slower).
+
     python scripts/bench_engine.py [--sizes 10 100 1000] [--steps 100000] [--repeats 3]
-                                   [--sensing default off] [--loads busy idle]
+                                   [--sensing default off] [--loads busy idle] [--profile N]
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import pstats
 import statistics
 import time
 from dataclasses import replace
@@ -69,6 +75,7 @@ def main() -> None:
         help="the default scenario's sensing radius, none, or both (the default)",
     )  # fmt: skip
     ap.add_argument("--loads", nargs="+", choices=["busy", "idle"], default=["busy", "idle"])
+    ap.add_argument("--profile", type=int, default=0, metavar="N", help="print N top entries")
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "default.toml")
@@ -96,8 +103,16 @@ def main() -> None:
                 t0 = time.perf_counter()
                 world = World(sensed, floor)
                 t1 = time.perf_counter()
+                profile = cProfile.Profile() if args.profile else None
+                if profile is not None:
+                    profile.enable()
                 result = world.run()
                 t2 = time.perf_counter()
+                if profile is not None:
+                    profile.disable()
+                    stats = pstats.Stats(profile)
+                    for key in ("cumulative", "tottime"):
+                        stats.sort_stats(key).print_stats(args.profile)
                 steps = result.summary["engine"]["robot_steps"]
                 setups.append(t1 - t0)
                 runs.append(t2 - t1)
