@@ -33,8 +33,12 @@ GAP_TOL = 1e-6
 ON_LINE_TOL = 1e-9
 
 _PARALLEL = 1e-12  # |cos| below which a segment runs parallel to a boundary line
-#: Answers `SpeedLimits` keeps per query kind; when full it forgets them all and starts over.
+#: Leg times `SpeedLimits.segment_time` keeps (about 100 bytes each); when full it forgets
+#: them all and starts over.
 CACHE_ENTRIES = 1 << 16
+#: Batches `SpeedLimits.travel_times` keeps (about 1 kB each for the 18 legs of a waypoint's
+#: slide); likewise.
+BATCH_CACHE_ENTRIES = 1 << 13
 
 
 class SpeedLimits:
@@ -208,7 +212,7 @@ class SpeedLimits:
         cache = self._batch_times
         hit = cache.get(key)
         if hit is None:
-            if len(cache) >= CACHE_ENTRIES:
+            if len(cache) >= BATCH_CACHE_ENTRIES:
                 cache.clear()
             hit = cache[key] = self._travel_times(P, Q)
         return hit[0].copy(), hit[1].copy()
