@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
+from scipy.spatial import cKDTree
 
 from fleet.floor import Floor
 from fleet.printing import CapSchedule
@@ -243,16 +244,20 @@ def _close_pairs(p: np.ndarray, ids: np.ndarray, radii: np.ndarray, reach: float
         a, b = np.nonzero(np.triu(d < limit, k=1))
         pairs = [(int(ids[x]), int(ids[y]), float(d[x, y])) for x, y in zip(a, b, strict=True)]
     else:
-        # Large fleets: sort by x and compare only within reach.
+        # Large fleets: a k-d tree finds the pairs within reach (the rest cannot touch),
+        # listed as comparing each robot with the ones after it in x order would.
         order = np.argsort(p[:, 0], kind="stable")
         ps, idx = p[order], ids[order]
-        pairs = []
-        ends = np.searchsorted(ps[:, 0], ps[:, 0] + reach, side="right")
-        for i in np.flatnonzero(ends > np.arange(len(ps)) + 1):
-            sl = slice(i + 1, ends[i])
-            d = np.hypot(ps[sl, 0] - ps[i, 0], ps[sl, 1] - ps[i, 1])
-            for off in np.flatnonzero(d < radii[idx[i]] + radii[idx[sl]] - 1e-9):
-                pairs.append((int(idx[i]), int(idx[i + 1 + off]), float(d[off])))
+        near = cKDTree(ps).query_pairs(reach, output_type="ndarray")
+        a, b = near[:, 0], near[:, 1]  # a < b: positions in x order
+        first = np.lexsort((b, a))
+        a, b = a[first], b[first]
+        d = np.hypot(ps[b, 0] - ps[a, 0], ps[b, 1] - ps[a, 1])
+        hit = d < radii[idx[a]] + radii[idx[b]] - 1e-9
+        pairs = [
+            (int(idx[x]), int(idx[y]), float(dd))
+            for x, y, dd in zip(a[hit], b[hit], d[hit], strict=True)
+        ]
     return [(min(i, j), max(i, j), d) for i, j, d in pairs]
 
 

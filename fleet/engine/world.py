@@ -29,6 +29,7 @@ from fleet.bus import AgentHost, Exchange
 from fleet.engine.activity import Activity
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.breakdowns import Breakdowns
+from fleet.engine.collector import fewer_collections
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
@@ -340,7 +341,8 @@ class World:
         if progress is not None or stop is not None:
             self.env.process(self._watch(progress, stop, duration))
         try:
-            self.env.run(until=duration)
+            with fewer_collections():
+                self.env.run(until=duration)
         finally:
             self._close_bus()
         wall = time.perf_counter() - wall0
