@@ -46,3 +46,15 @@ def test_a_run_collects_less_often_and_leaves_the_collector_as_it_found_it():
     assert seen and all(s == max(YOUNG_THRESHOLD, before[0]) for s in seen)
     assert gc.get_threshold() == before
     assert gc.get_freeze_count() == 0
+
+
+def test_objects_the_process_froze_itself_stay_frozen():
+    kept = [Node() for _ in range(10)]
+    gc.freeze()
+    try:
+        with fewer_collections():
+            assert gc.get_threshold()[0] >= YOUNG_THRESHOLD
+        assert gc.get_freeze_count() > 0  # not thawed when the run's block ended
+    finally:
+        gc.unfreeze()
+    assert kept

@@ -27,6 +27,7 @@ YOUNG_THRESHOLD = 20_000
 _lock = threading.Lock()
 _depth = 0
 _saved: tuple[int, ...] = ()
+_froze = False
 
 
 @contextmanager
@@ -34,11 +35,15 @@ def fewer_collections() -> Iterator[None]:
     """Freeze the objects alive now and collect less often until the block ends; then
     restore the collector's thresholds and unfreeze. Runs nested or in threads at once share
     one such period: the first to start begins it, the last to end ends it."""
-    global _depth, _saved
+    global _depth, _saved, _froze
     with _lock:
         if _depth == 0:
             _saved = gc.get_threshold()
-            gc.freeze()
+            # A process that froze objects itself (e.g. before forking) keeps them frozen:
+            # unfreezing at the end would thaw its objects too, so leave freezing alone then.
+            _froze = gc.get_freeze_count() == 0
+            if _froze:
+                gc.freeze()
             gc.set_threshold(max(YOUNG_THRESHOLD, _saved[0]), *_saved[1:])
         _depth += 1
     try:
@@ -48,4 +53,5 @@ def fewer_collections() -> Iterator[None]:
             _depth -= 1
             if _depth == 0:
                 gc.set_threshold(*_saved)
-                gc.unfreeze()
+                if _froze:
+                    gc.unfreeze()
