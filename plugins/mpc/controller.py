@@ -50,7 +50,7 @@ PLAN_MATCH = 1e-6
 
 
 class MPCController(Controller):
-    """Mixed-integer MPC over the floor's convex regions, solved by HiGHS through Pyomo.
+    """Mixed-integer MPC over the floor's convex regions, solved by HiGHS.
 
     The paper's formulation: double integrator, zone speed limits as a Big-M union over the
     regions (M tight per row), time-varying print caps per horizon step, input bounds, horizon
@@ -104,8 +104,9 @@ class MPCController(Controller):
     cost:
         ``"l1"`` (default) or ``"quadratic"`` (the MILP, then the QP with its regions fixed).
     interface:
-        ``"direct"`` (default): per-step bounds written into the persistent HiGHS object by
-        index; ``"pyomo"``: mutable Params through Pyomo's persistent update (slower, same model).
+        ``"direct"`` (default): each step's MILP bounded to what the step can reach, written
+        straight into HiGHS (`bounded`); ``"pyomo"``: the trip's Pyomo model, mutable Params
+        through Pyomo's persistent update (slower, the same optimal costs).
     avoid_robots:
         Keep clear of the other robots in the observation (their plans); False ignores them.
     separation_margin_m:

@@ -1,7 +1,6 @@
-"""The trip's mixed-integer MPC as a Pyomo model, kept in a persistent HiGHS instance.
+"""The trip's mixed-integer MPC: the Pyomo formulation, and how each step reaches HiGHS.
 
-One model per trip (reference), built once and updated in place every control step. The
-formulation, for horizon steps k = 0..N with step dt:
+The formulation, for horizon steps k = 0..N with step dt:
 
 - double integrator ``p[k+1] = p[k] + dt v[k]``, ``v[k+1] = v[k] + dt u[k]``, ``|u| <= a_max``;
   p[0], v[0] fixed to the measured state (their bounds);
@@ -18,16 +17,20 @@ formulation, for horizon steps k = 0..N with step dt:
 Per step only bounds change: p, v (measured state, caps, reachable boxes), z (corridor: a 0
 upper bound switches a region off for a step) and the right-hand sides of the tracking rows
 (the reference). Rows keeping clear of other robots (`separation`) change in number every
-step; they are added for one solve only. Two ways to push the rest into HiGHS (`Interface`):
-through Pyomo's persistent interface (mutable Params, ``update_parameters``) or written straight
-into a copy of the model that interface built, by the column/row indices it assigned (no Pyomo
-expression re-evaluation: 1.2x HiGHS time instead of ~2x; see docs/mpc.md).
+step; they are added for one solve only. Two ways to a solve (`Interface`):
 
-Every direct solve runs in a new HiGHS object holding a copy of the trip's model (0.1 ms), so
-that its result depends on its inputs only. A reused object completes a MIP start against its
-lifetime clock: once a trip's solves have added up to ``time_limit_s``, HiGHS silently drops
-starts it has to complete, and when that happens depends on the wall clock (two runs of the
-same fleet diverged there; docs/mpc.md, "Reproducible solves").
+- "direct" (default): no Pyomo model; each step's MILP is written as arrays (`bounded`) with
+  only the binaries the corridor leaves open and the rows the step's reachable box can break,
+  M tight over that box: the same feasible set, a model whose size does not grow with the trip,
+  and no model to build per trip (Pyomo took 0.25-0.4 s per trip at 40 robots);
+- "pyomo": the trip's Pyomo model above, built once per trip in Pyomo's persistent interface
+  (mutable Params, ``update_parameters``): the reference path, and the check that both agree.
+
+Every direct solve runs in a new HiGHS object, so that its result depends on its inputs only. A
+reused object completes a MIP start against its lifetime clock: once a trip's solves have added
+up to ``time_limit_s``, HiGHS silently drops starts it has to complete, and when that happens
+depends on the wall clock (two runs of the same fleet diverged there; docs/mpc.md,
+"Reproducible solves").
 """
 
 from __future__ import annotations
@@ -73,9 +76,10 @@ class Interface(enum.Enum):
     """How per-step data reaches HiGHS."""
 
     DIRECT = "direct"
-    """Bounds written into the persistent interface's HiGHS object by index (fast)."""
+    """Each step's bounded MILP written straight into HiGHS as arrays (`bounded`; fast)."""
     PYOMO = "pyomo"
-    """Mutable Params and the persistent interface's own update (the reference path)."""
+    """The trip's Pyomo model: mutable Params and the persistent interface's own update (the
+    reference path)."""
 
 
 @dataclass
@@ -112,7 +116,8 @@ class Solution:
 
 
 class TripModel:
-    """The Pyomo model of one trip and its persistent HiGHS instance.
+    """One trip's MPC: per step, the bounded MILP (direct interface), or the trip's Pyomo
+    model and its persistent HiGHS instance (pyomo interface).
 
     Parameters
     ----------

@@ -73,9 +73,15 @@ def check_options(
         raise ValueError(
             f"MPCController option max_neighbours = {max_neighbours!r}: must be an integer >= 0"
         )
-    if isinstance(reuse_ticks, bool) or not isinstance(reuse_ticks, int) or reuse_ticks < 0:
+    if (
+        isinstance(reuse_ticks, bool)
+        or not isinstance(reuse_ticks, int)
+        or not 0 <= reuse_ticks < horizon
+    ):
+        # A plan followed for `horizon` ticks has run out: the robot would stand still.
         raise ValueError(
-            f"MPCController option reuse_ticks = {reuse_ticks!r}: must be an integer >= 0"
+            f"MPCController option reuse_ticks = {reuse_ticks!r}: must be an integer >= 0 "
+            f"and below the horizon ({horizon})"
         )
     try:
         checked = Interface(interface)
