@@ -56,20 +56,22 @@ def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float
     the whole horizon, whatever it does of what a solve assumes: carry on with its plan or
     brake along its line of travel.
 
-    Sound and cheap: the bounding box of the plan and the bounding box of the neighbour's
-    predicted centres and braking path (each holds its path's segments, so between the steps
-    too) must lie more than ``r_i + r_j + margin`` apart along one axis. Then the two centres
-    are that far apart along that axis at every instant: the separation rows of a solve hold
-    with their margin, whichever robot would have yielded.
+    Sound and cheap, step by step: over each step k -> k+1 the plan's segment lies in the box of
+    its two ends, and the neighbour (on its plan or braking) in the box of its four predicted
+    points at k and k+1. Those two boxes must lie more than ``r_i + r_j + margin`` apart along
+    one axis, so the two centres are that far apart along it at every instant of the step: the
+    separation rows of a solve hold with their margin, whichever robot would have yielded.
     """
     dt, N = spec.period, len(p) - 1
-    lo, hi = p.min(axis=0), p.max(axis=0)
+    lo = np.minimum(p[:-1], p[1:])  # (N, 2): the plan's box over each step
+    hi = np.maximum(p[:-1], p[1:])
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, N)
         stop = np.asarray(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))[:, 1:]
-        path = np.vstack([centres, stop])
+        stop = np.vstack([stop, np.repeat(stop[-1:], N + 1 - len(stop), axis=0)])
+        ends = np.stack([centres[:-1], centres[1:], stop[:-1], stop[1:]])  # (4, N, 2)
         half = spec.radius + float(n.radius) + margin
-        apart = (path.min(axis=0) >= hi + half) | (path.max(axis=0) <= lo - half)
-        if not apart.any():
+        apart = (ends.min(axis=0) >= hi + half) | (ends.max(axis=0) <= lo - half)
+        if not apart.any(axis=1).all():
             return False
     return True
