@@ -30,7 +30,7 @@ from fleet.plugins import (
     SolverOutcome,
 )
 from fleet_plugins.mpc.fallback import brake, follow_previous
-from fleet_plugins.mpc.horizon import region_bounds, step_data
+from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
 from fleet_plugins.mpc.neighbours import clear_of_neighbours, robots_to_avoid
 from fleet_plugins.mpc.options import check_horizon, check_options
@@ -282,8 +282,12 @@ class MPCController(Controller):
 
     def _reuse(self, obs: Observation) -> Command:
         """Follow the previous plan one step on (no solve, no `SolveReport`)."""
-        assert self._last is not None
+        assert self._last is not None and self._trip is not None
         self._last, self._last_t = shifted(self._last), obs.t
+        # Keep the progress along the reference current, as a solve's step data does (its
+        # search looks only `PROGRESS_WINDOW` samples ahead of the last one).
+        here = np.array([[obs.x, obs.y]])
+        self._progress = int(self._trip.progress(here, self._progress, PROGRESS_WINDOW)[0])
         self._reused += 1
         self.reuses += 1
         last = self._last
