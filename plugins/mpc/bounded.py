@@ -9,15 +9,18 @@ writes the same step's MILP with only what that step can use:
 - binaries only for the (step, region) pairs the corridor leaves open (``StepData.z_ub``);
 - a face row only where the face can be crossed inside the step's reachable box, with M tight
   over that box (``max a . p - b`` over the box of p[k]), not over the trip's box;
-- the midpoint cut and the zone speed rows alike: kept only where the box (or the step's speed
-  bounds) can break them, with M tight over the box (the speed bounds).
+- the midpoint cut alike: kept only where the box can break it, with M tight over the box;
+- the zone speed as one row per step, axis and sign, ``s v[k] <= sum_j min(v_j, vb) z[k, j]``
+  (vb the step's own speed bound): exact when one region is on, and the convex combination of
+  the limits for a fractional z, tighter than one Big-M row per region; only where an open
+  region is slower than vb.
 
-Each row left out holds at every point of the box, so the feasible set of (p, v, u) is the same
-as the trip model's and so is the optimal cost; only the relaxation is tighter (fewer
-branch-and-bound nodes). The model's size no longer depends on the trip's length: it is fixed
-by the horizon and the corridor. Columns are laid out as in `Layout` (the "full" layout of the
-trip model's columns, for warm starts and solutions); the MILP holds its fixed columns and then
-the open binaries only.
+Each row left out holds at every point of the box (and every speed within the bounds), so the
+feasible set of (p, v, u) is the same as the trip model's and so is the optimal cost; only the
+relaxation is tighter (fewer branch-and-bound nodes). The model's size no longer depends on the
+trip's length: it is fixed by the horizon and the corridor. Columns are laid out as in `Layout`
+(the "full" layout of the trip model's columns, for warm starts and solutions); the MILP holds
+its fixed columns and then the open binaries only.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 
 from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
 
-__all__ = ["Layout", "StepMILP", "build_step"]
+__all__ = ["Layout", "StepMILP", "TripFaces", "build_step"]
 
 _INF = highspy.kHighsInf
 _ROWWISE = int(highspy.MatrixFormat.kRowwise)
