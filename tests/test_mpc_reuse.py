@@ -6,13 +6,16 @@ caps the plan breaks, another robot within reach, or the plan's age. Real solves
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from fleet.engine import World
 from fleet.errors import PluginError
 from fleet.plugins import ControlStatus, load_controller
 from fleet.printing import CapSchedule
+from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
 from fleet_plugins.mpc import MPCController
 from tests.test_mpc import L_HALL, SPEC_1S, Loop, l_hall
 from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away
@@ -125,3 +128,22 @@ def test_a_bad_reuse_ticks_is_refused(value: object) -> None:
         MPCController(reuse_ticks=value)  # type: ignore[arg-type]
     with pytest.raises(PluginError, match="'mpc'.*reuse_ticks"):
         load_controller("mpc", {"reuse_ticks": value})
+
+
+def test_a_fleet_reusing_plans_is_safe_and_the_same_with_0_and_2_workers() -> None:
+    # Through the engine: 6 MPC robots on the shop floor with reuse, in this process and in
+    # two worker processes: the same digest (a reuse depends on the observation only), no
+    # violation, and fewer solves than the same fleet solving every tick.
+    base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml").override(
+        robots=6, duration=120.0, controller="mpc"
+    )
+    reusing = replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 4}))
+    results = [World(reusing, workers=w).run() for w in (0, 2)]
+    summaries = [r.summary for r in results]
+    for result, s in zip(results, summaries, strict=True):
+        assert set(s["solver"]["termination"]) == {"optimal"}  # none cut by the wall clock
+        assert sum(s["violations"].values()) == 0, result.safety.examples
+    assert summaries[0]["digest"] == summaries[1]["digest"]
+    every_tick = World(base).run().summary
+    assert summaries[0]["solver"]["steps"] < 0.6 * every_tick["solver"]["steps"]
+    assert summaries[0]["jobs"]["completed"] >= every_tick["jobs"]["completed"] - 1 >= 0
