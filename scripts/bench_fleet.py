@@ -28,7 +28,7 @@ Nothing is asserted: the figures go in notes and the README.
     python scripts/bench_fleet.py [--minutes 30] [--robots 20] [--workers 0 1 2]
     python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200]
     python scripts/bench_fleet.py --sweep 10 20 40 80 [--duration 120] [--per-robot-rate 120]
-        [--out runs/sweep]
+        [--out runs/sweep] [--options reuse_ticks=4]
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -44,7 +45,7 @@ import numpy as np
 
 from fleet.engine import World
 from fleet.engine.agents import split_robots
-from fleet.scenario import REPO_ROOT, load_scenario
+from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
 
 
 def run(scenario, workers: int) -> tuple[dict, float]:
@@ -178,10 +179,19 @@ def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, 
 
 
 def sweep(
-    base, sizes: list[int], duration: float, per_robot_rate: float, out: Path | None = None
+    base,
+    sizes: list[int],
+    duration: float,
+    per_robot_rate: float,
+    out: Path | None = None,
+    options: dict[str, Any] | None = None,
 ) -> None:
-    """The MPC fleet at each size: contacts, fallbacks, deadlocks and jobs (issue 16); with
-    `out`, each run's directory is written to ``out/robots<N>`` for `fleet replay`."""
+    """The MPC fleet at each size: contacts, fallbacks, deadlocks and jobs (issue 16), and its
+    pace (issue 17): real-time factor on the wall clock and on this process's CPU time (the
+    machine is shared: CPU time is what a run costs, the wall clock what it waited too), solve
+    median / p95 (ms, wall), solves and ticks that followed the previous plan instead
+    (``reuse_ticks``). `options` are MPC controller options; with `out`, each run's directory
+    is written to ``out/robots<N>`` for `fleet replay`."""
     print(
         f"MPC fleet sweep on {base.map.name}: {duration:g} simulated s, "
         f"{per_robot_rate:g} jobs per robot-hour, sensing {base.sensing_radius_m:g} m, "
@@ -195,6 +205,9 @@ def sweep(
     for n in sizes:
         sc = base.override(robots=n, controller="mpc", duration=duration)
         sc = replace(sc, jobs=replace(sc.jobs, rate_per_h=per_robot_rate * n))
+        if options:
+            merged = dict(sc.controller.options, **options)
+            sc = replace(sc, controller=PluginChoice(sc.controller.name, merged))
         world = World(sc)
         goals: dict[tuple[float, str], tuple[float, float]] = {}
         record = world.recorder.event
@@ -205,7 +218,9 @@ def sweep(
             record(t, kind, job, robot, station)
 
         world.recorder.event = event  # type: ignore[method-assign]
+        cpu0 = time.process_time()
         s = world.run().summary
+        cpu = time.process_time() - cpu0
         if out is not None:
             world.write(out / f"robots{n}")
         gap, a, b, t = closest_approach(world)
@@ -224,6 +239,14 @@ def sweep(
             f"gap to contact {gap:+.3f} m; solver {s['solver']['termination']}; hand-backs "
             f"{s['jobs']['handed_back']}, failed {s['jobs']['failed']}; median "
             f"{fate['median_s_to_progress']} s from a deadlock to progress",
+        )
+        assert world.host is not None
+        reuses = sum(getattr(c, "reuses", 0) for c in world.host.controllers.values())
+        sv = s["solver"]
+        print(
+            f"{'':>6} pace: RTF {duration / s['wall_time_s']:.3f} (wall), {duration / cpu:.3f} "
+            f"(CPU {cpu:.1f} s); solves {sv['steps']}, median {sv['median_ms'] or 0:.2f} ms, "
+            f"p95 {sv['p95_ms'] or 0:.2f} ms; plan reused {reuses}; digest {s['digest'][:12]}",
             flush=True,
         )
 
@@ -242,13 +265,19 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=120.0, help="simulated s per sweep run")
     ap.add_argument("--per-robot-rate", type=float, default=120.0, help="sweep: jobs/robot-hour")
     ap.add_argument("--out", type=Path, help="sweep: write each run's directory under this")
+    ap.add_argument(
+        "--options", nargs="*", default=[], metavar="K=V", help="sweep: MPC options (TOML values)"
+    )
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
     if args.rate is not None:
         base = replace(base, jobs=replace(base.jobs, rate_per_h=args.rate))
     if args.sweep:
-        sweep(base, args.sweep, args.duration, args.per_robot_rate, args.out)
+        options = {
+            k: tomllib.loads(f"v = {v}")["v"] for k, v in (o.split("=", 1) for o in args.options)
+        }
+        sweep(base, args.sweep, args.duration, args.per_robot_rate, args.out, options)
         return
     if args.balance:
         balance(base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0))
