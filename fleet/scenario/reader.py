@@ -295,11 +295,16 @@ class Scenario:
         duration: float | None = None,
         seed: int | None = None,
         latency: str | float | None = None,
+        controller_options: Mapping[str, Any] | None = None,
     ) -> Scenario:
         """A copy with command-line overrides applied and validated.
 
         `latency` takes what ``--latency`` takes: ``"none"``, ``"measured"`` or seconds >= 0
         (a number or its text); None leaves the scenario's setting.
+
+        A `controller` that is the scenario's own keeps its options; another one gets only
+        `controller_options` (those given with it, ``--set controller.options.*``): the file's
+        options were written for another plugin.
         """
         src = "command line"
         out = self
@@ -319,8 +324,8 @@ class Scenario:
                     "count in the file",
                 )
             out = replace(out, robots=(replace(out.robots[0], count=count),))
-        if controller is not None:
-            out = replace(out, controller=PluginChoice(controller))
+        if controller is not None and controller != out.controller.name:
+            out = replace(out, controller=PluginChoice(controller, dict(controller_options or {})))
         if dispatcher is not None:
             out = replace(out, dispatcher=PluginChoice(dispatcher))
         if duration is not None:
