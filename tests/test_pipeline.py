@@ -171,11 +171,12 @@ def test_pipelined_followers_give_the_same_run_with_0_1_and_2_workers():
     assert len({s["digest"] for s in summaries}) == 1, [s["digest"] for s in summaries]
     for s in summaries:
         check_accounting(s)
+        assert s["lockstep"] == "pipelined"
         assert s["violations"] == NO_VIOLATIONS
         assert s["faults"]["agents_lost"] == 0 and s["engine"]["bus_timeouts"] == 0
     assert summaries[0]["jobs"]["completed"] >= 3
     strict = World(busy_fleet(6, 90.0)).run().summary
-    assert strict["digest"] != summaries[0]["digest"]
+    assert strict["lockstep"] == "strict" and strict["digest"] != summaries[0]["digest"]
 
 
 def test_pipelined_mpc_robots_keep_clear_and_give_the_same_run_with_0_1_and_2_workers():
