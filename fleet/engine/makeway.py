@@ -42,6 +42,9 @@ log = logging.getLogger("fleet.engine")
 AWAY_M = 0.5
 #: Gap (m) kept from every other robot, on top of the two radii.
 OTHERS_M = 0.2
+#: The gap (m) a controller keeps on top of the radii and the unseen step (the follower's
+#: default margin): a way aside must keep it from the stuck robot, or it is not driven.
+FOLLOWER_MARGIN_M = 0.1
 #: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the robot.
 RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 #: Candidate directions on each ring.
@@ -139,27 +142,57 @@ class MakeWay:
                     robot.id,
                     stuck.id,
                 )
+                # Shut in (a dead end, a station in a pocket) by the stuck robot itself: that
+                # one backs off the way the other has to leave by, and comes back once it is out.
+                self._back_off(stuck, robot, t)
                 continue
-            away = robot.spec.radius + stuck.spec.radius + AWAY_M
-            robot.aside = Aside(
-                spot,
-                stuck.id,
-                goal,
-                math.hypot(goal[0] - stuck.x, goal[1] - stuck.y),
-                PASSED_FACTOR * away,
-                t + self.hold_s,
-                None if robot.job is None else robot.job.job.id,
-            )
-            self.recorder.stats["made_way"] += 1
-            self.recorder.event(t, "make_way", job, robot.id, stuck.id)
-            log.info(
-                "t = %.2f s: robot %s steps aside to (%.2f, %.2f) for %s",
-                t,
-                robot.id,
-                spot[0],
-                spot[1],
-                stuck.id,
-            )
+            self._send_aside(robot, stuck, spot, goal, job, t)
+
+    def _send_aside(
+        self,
+        robot: RobotState,
+        stuck: RobotState,
+        spot: tuple[float, float],
+        goal: tuple[float, float],
+        job: str,
+        t: float,
+    ) -> None:
+        """Send `robot` to `spot`, off the way of `stuck` (heading for `goal`)."""
+        away = robot.spec.radius + stuck.spec.radius + AWAY_M
+        robot.aside = Aside(
+            spot,
+            stuck.id,
+            goal,
+            math.hypot(goal[0] - stuck.x, goal[1] - stuck.y),
+            PASSED_FACTOR * away,
+            t + self.hold_s,
+            None if robot.job is None else robot.job.job.id,
+        )
+        self.recorder.stats["made_way"] += 1
+        self.recorder.event(t, "make_way", job, robot.id, stuck.id)
+        log.info(
+            "t = %.2f s: robot %s steps aside to (%.2f, %.2f) for %s",
+            t,
+            robot.id,
+            spot[0],
+            spot[1],
+            stuck.id,
+        )
+
+    def _back_off(self, stuck: RobotState, blocker: RobotState, t: float) -> None:
+        """`blocker` has no spot off `stuck`'s route: send `stuck` off the blocker's own route
+        (to the blocker's goal) instead, if the blocker has somewhere to go and `stuck` a spot."""
+        if stuck.aside is not None or not stuck.in_service:
+            return
+        theirs = blocker.watched_goal
+        if theirs is None or math.hypot(theirs[0] - blocker.x, theirs[1] - blocker.y) < 1e-9:
+            return
+        spot = self._spot(stuck, blocker, self._route(blocker, theirs))
+        if spot is None:
+            return
+        self.recorder.stats["backed_off"] += 1
+        job = "" if blocker.job is None else blocker.job.job.id
+        self._send_aside(stuck, blocker, spot, theirs, job, t)
 
     def in_the_way(
         self, stuck: RobotState, goal: tuple[float, float], t: float
@@ -265,7 +298,12 @@ class MakeWay:
                 return False
             leg = LineString(waypoints)
         # Robots stuck together may already stand closer than that: then never any closer.
+        # Besides the gap, a robot keeps clear of the step a neighbour may take unseen within
+        # one period (a_max*dt**2 per axis): a way that passes closer is one its controller
+        # refuses to drive, and the robot would hold where it stands for good.
         there = Point(stuck.x, stuck.y)
         now = there.distance(Point(robot.x, robot.y))
-        reach = min(robot.spec.radius + stuck.spec.radius + OTHERS_M, now)
+        spec = robot.spec
+        unseen = FOLLOWER_MARGIN_M + math.sqrt(2.0) * spec.a_max * spec.period**2
+        reach = min(robot.spec.radius + stuck.spec.radius + max(OTHERS_M, unseen), now)
         return leg.distance(there) >= reach - 1e-6
