@@ -45,6 +45,11 @@ def judged(case: str, tmp_path: Path) -> list:
         # but the follower never looked again (its failed attempt was remembered by the
         # blockers' names), and it stood 2 m from home for the last 150 s.
         "blocker_moved_detour",
+        # Five robots start round one depot 1.18 m apart; at a period of 0.67 s (a_max 1.45)
+        # the follower keeps 2.0 m from a neighbour, so three that left their start spots to
+        # make way could never drive back between the others (0.7 to 2.8 m from home to the
+        # end). Start spots are now spaced by the step a robot may take unseen, too.
+        "homes_at_coarse_period",
     ],
 )
 def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
