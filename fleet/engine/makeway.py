@@ -45,6 +45,8 @@ OTHERS_M = 0.2
 #: The gap (m) a controller keeps on top of the radii and the unseen step (the follower's
 #: default margin): a way aside must keep it from the stuck robot, or it is not driven.
 FOLLOWER_MARGIN_M = 0.1
+#: A robot let out to a spot nearby is there (m), for the one that backed off for it.
+ARRIVED_M = 0.1
 #: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the robot.
 RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 #: Candidate directions on each ring.
@@ -144,7 +146,7 @@ class MakeWay:
                 )
                 # Shut in (a dead end, a station in a pocket) by the stuck robot itself: that
                 # one backs off the way the other has to leave by, and comes back once it is out.
-                self._back_off(stuck, robot, t)
+                self._back_off(stuck, robot, goal, route, t)
                 continue
             self._send_aside(robot, stuck, spot, goal, job, t)
 
@@ -156,15 +158,22 @@ class MakeWay:
         goal: tuple[float, float],
         job: str,
         t: float,
+        nearby: bool = False,
     ) -> None:
-        """Send `robot` to `spot`, off the way of `stuck` (heading for `goal`)."""
+        """Send `robot` to `spot`, off the way of `stuck` (heading for `goal`); with `nearby`,
+        `stuck` is past once it is at `goal` however near that is (a robot let out of a corner
+        to a spot close by)."""
         away = robot.spec.radius + stuck.spec.radius + AWAY_M
+        gap = math.hypot(goal[0] - stuck.x, goal[1] - stuck.y)
+        passed = PASSED_FACTOR * away
+        if nearby:
+            passed = min(passed, max(gap - ARRIVED_M, 0.0))
         robot.aside = Aside(
             spot,
             stuck.id,
             goal,
-            math.hypot(goal[0] - stuck.x, goal[1] - stuck.y),
-            PASSED_FACTOR * away,
+            gap,
+            passed,
             t + self.hold_s,
             None if robot.job is None else robot.job.job.id,
         )
@@ -179,20 +188,39 @@ class MakeWay:
             stuck.id,
         )
 
-    def _back_off(self, stuck: RobotState, blocker: RobotState, t: float) -> None:
-        """`blocker` has no spot off `stuck`'s route: send `stuck` off the blocker's own route
-        (to the blocker's goal) instead, if the blocker has somewhere to go and `stuck` a spot."""
+    def _back_off(
+        self,
+        stuck: RobotState,
+        blocker: RobotState,
+        goal: tuple[float, float],
+        route: shapely.Geometry,
+        t: float,
+    ) -> None:
+        """`blocker` has no spot off `stuck`'s route (to `goal`) it can reach without closing in
+        on `stuck`: send `stuck` off the blocker's own way instead. A blocker with somewhere to
+        go is let go there; one parked for good (idle, not going home) is sent to the spot off
+        `stuck`'s route it would take were `stuck` not in the way, once `stuck` has backed off
+        its way there."""
         if stuck.aside is not None or not stuck.in_service:
             return
         theirs = blocker.watched_goal
-        if theirs is None or math.hypot(theirs[0] - blocker.x, theirs[1] - blocker.y) < 1e-9:
-            return
-        spot = self._spot(stuck, blocker, self._route(blocker, theirs))
+        parked = theirs is None or math.hypot(theirs[0] - blocker.x, theirs[1] - blocker.y) < 1e-9
+        if parked:
+            theirs = self._spot(blocker, stuck, route, past=True)
+            if theirs is None:
+                return
+            way = self._way(blocker, theirs)
+        else:
+            way = self._route(blocker, theirs)
+        spot = self._spot(stuck, blocker, way)
         if spot is None:
             return
         self.recorder.stats["backed_off"] += 1
         job = "" if blocker.job is None else blocker.job.job.id
-        self._send_aside(stuck, blocker, spot, theirs, job, t)
+        self._send_aside(stuck, blocker, spot, theirs, job, t, nearby=parked)
+        if parked:
+            sid = "" if stuck.job is None else stuck.job.job.id
+            self._send_aside(blocker, stuck, theirs, goal, sid, t)
 
     def in_the_way(
         self, stuck: RobotState, goal: tuple[float, float], t: float
@@ -225,7 +253,11 @@ class MakeWay:
         if t >= aside.until or job != aside.job:
             return False
         other = self.robots.get(aside.made_way_for)
-        if other is None or not other.in_service or other.watched_goal != aside.their_goal:
+        if other is None or not other.in_service:
+            return False
+        # The other may be backing off to let this one out first: it still comes.
+        backing = other.aside is not None and other.aside.made_way_for == robot.id
+        if other.watched_goal != aside.their_goal and not backing:
             return False
         gx, gy = aside.their_goal
         closer = math.hypot(gx - other.x, gy - other.y) < aside.their_gap - aside.passed_m
@@ -255,10 +287,15 @@ class MakeWay:
         return shapely.union_all([LineString(w) for w in lines] + [Point(goal)])
 
     def _spot(
-        self, robot: RobotState, stuck: RobotState, route: shapely.Geometry
+        self,
+        robot: RobotState,
+        stuck: RobotState,
+        route: shapely.Geometry,
+        past: bool = False,
     ) -> tuple[float, float] | None:
         """The nearest spot on `RINGS` round `robot` it can drive to that is off `route` and
-        clear of the other robots; on one ring, the one furthest from the route."""
+        clear of the other robots; on one ring, the one furthest from the route. With `past`,
+        the way there may pass close to `stuck` (which backs off first)."""
         free = self.floor.free_space
         away = robot.spec.radius + stuck.spec.radius + AWAY_M
         others = [
@@ -280,23 +317,34 @@ class MakeWay:
                     continue
                 if any(math.hypot(x - ox, y - oy) < d for ox, oy, d in others):
                     continue
-                if not self._reachable(robot, stuck, (x, y)):
+                if not self._reachable(robot, stuck, (x, y), past):
                     continue
                 best, best_gap = (x, y), gap
             if best is not None:
                 return best
         return None
 
-    def _reachable(self, robot: RobotState, stuck: RobotState, spot: tuple[float, float]) -> bool:
-        """Whether `robot` can drive to `spot` without coming within reach of `stuck`: straight
-        if the free space holds the segment, else along the path layer's path."""
+    def _way(self, robot: RobotState, spot: tuple[float, float]) -> LineString | None:
+        """`robot`'s way to `spot`: straight if the free space holds the segment, else along
+        the path layer's path; None without one."""
         leg = LineString([(robot.x, robot.y), spot])
-        if not self.floor.free_space.covers(leg):
-            try:
-                waypoints = self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints
-            except NoPathError:
-                return False
-            leg = LineString(waypoints)
+        if self.floor.free_space.covers(leg):
+            return leg
+        try:
+            return LineString(self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints)
+        except NoPathError:
+            return None
+
+    def _reachable(
+        self, robot: RobotState, stuck: RobotState, spot: tuple[float, float], past: bool = False
+    ) -> bool:
+        """Whether `robot` can drive to `spot` (`_way`) without coming within reach of
+        `stuck` (with `past`: whether it has a way at all)."""
+        leg = self._way(robot, spot)
+        if leg is None:
+            return False
+        if past:
+            return True
         # Robots stuck together may already stand closer than that: then never any closer.
         # Besides the gap, a robot keeps clear of the step a neighbour may take unseen within
         # one period (a_max*dt**2 per axis): a way that passes closer is one its controller
