@@ -76,6 +76,13 @@ class Aside:
     job: str | None = None
 
 
+def kept_gap(robot: RobotState) -> float:
+    """The gap (m) `robot` keeps from a neighbour on top of the two radii: the follower's
+    margin and the step a neighbour may take unseen in one period (``sqrt(2) a_max dt**2``)."""
+    spec = robot.spec
+    return FOLLOWER_MARGIN_M + math.sqrt(2.0) * spec.a_max * spec.period**2
+
+
 class MakeWay:
     """Sends robots that block a stuck one for good to spots off its route, and back."""
 
@@ -297,7 +304,8 @@ class MakeWay:
         clear of the other robots; on one ring, the one furthest from the route. With `past`,
         the way there may pass close to `stuck` (which backs off first)."""
         free = self.floor.free_space
-        away = robot.spec.radius + stuck.spec.radius + AWAY_M
+        # Off the route by more than the stuck robot keeps from a neighbour, or it could not pass.
+        away = robot.spec.radius + stuck.spec.radius + max(AWAY_M, kept_gap(stuck) + OTHERS_M)
         others = [
             (o.x, o.y, robot.spec.radius + o.spec.radius + OTHERS_M)
             for o in self.robots.values()
@@ -338,20 +346,25 @@ class MakeWay:
     def _reachable(
         self, robot: RobotState, stuck: RobotState, spot: tuple[float, float], past: bool = False
     ) -> bool:
-        """Whether `robot` can drive to `spot` (`_way`) without coming within reach of
-        `stuck` (with `past`: whether it has a way at all)."""
+        """Whether `robot` can drive to `spot` (`_way`) without coming within reach of `stuck`
+        or any other robot (with `past`, it may pass `stuck`, which backs off first)."""
         leg = self._way(robot, spot)
         if leg is None:
             return False
-        if past:
-            return True
         # Robots stuck together may already stand closer than that: then never any closer.
         # Besides the gap, a robot keeps clear of the step a neighbour may take unseen within
         # one period (a_max*dt**2 per axis): a way that passes closer is one its controller
         # refuses to drive, and the robot would hold where it stands for good.
-        there = Point(stuck.x, stuck.y)
-        now = there.distance(Point(robot.x, robot.y))
+        # The same holds for every other robot on the way (a robot packed in among others at a
+        # depot was sent to a spot past one of them, 0.54 m from it, and never moved).
         spec = robot.spec
-        unseen = FOLLOWER_MARGIN_M + math.sqrt(2.0) * spec.a_max * spec.period**2
-        reach = min(robot.spec.radius + stuck.spec.radius + max(OTHERS_M, unseen), now)
-        return leg.distance(there) >= reach - 1e-6
+        gap = max(OTHERS_M, kept_gap(robot))
+        for o in self.robots.values():
+            if o is robot or (past and o is stuck):
+                continue
+            there = Point(o.x, o.y)
+            now = there.distance(Point(robot.x, robot.y))
+            reach = min(spec.radius + o.spec.radius + gap, now)
+            if leg.distance(there) < reach - 1e-6:
+                return False
+        return True
