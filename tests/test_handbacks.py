@@ -138,7 +138,6 @@ def test_auctions_hold_off_only_the_robot_that_gave_the_job_back():
     assert rec.robot == first.id
 
 
-
 def blocked_on_the_way_to_goal(world: World) -> tuple[JobRecord, JobRecord]:
     """Two jobs to the goal; the one robot takes the first and hands it back as blocked on its
     way there."""

@@ -124,9 +124,7 @@ def world3() -> World:
 
 
 @settings(max_examples=40, deadline=None)
-@given(
-    xy=st.lists(st.tuples(st.floats(1.0, 29.0), st.floats(1.0, 19.0)), min_size=3, max_size=3)
-)
+@given(xy=st.lists(st.tuples(st.floats(1.0, 29.0), st.floats(1.0, 19.0)), min_size=3, max_size=3))
 def test_the_way_aside_keeps_the_followers_gap_from_every_robot(world3: World, xy) -> None:
     # A robot packed in among others at a depot was sent to a spot past one of them (0.54 m
     # from it, where the follower keeps 0.73 m) and never moved; at a period of 0.5 s one sent
