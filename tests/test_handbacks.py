@@ -136,3 +136,44 @@ def test_auctions_hold_off_only_the_robot_that_gave_the_job_back():
     world.env.run(until=world.env.now + HOLD)
     world.dispatch.award(bids)  # the hold is over: the cheaper bid wins again
     assert rec.robot == first.id
+
+
+def blocked_on_the_way_to_goal(world: World) -> tuple[JobRecord, JobRecord]:
+    """Two jobs to the goal; the one robot takes the first and hands it back as blocked on its
+    way there."""
+    a, b = release(world, 2)
+    (robot,) = world.robots.values()
+    assert robot.job is a and b.open
+    goal = world.floor.station("goal")
+    robot.watched_goal = (goal.x, goal.y)  # what the deadlock watch saw it stuck on its way to
+    world.dispatch.hand_back(robot, a, "handed back: blocked", blocked=True)
+    world.dispatch.run_pending()
+    return a, b
+
+
+def test_a_robot_blocked_on_its_way_to_a_station_gets_no_job_there_until_the_hold_ends():
+    # Jobs to one station went round the robots stuck in front of it: each took the next job
+    # there, was blocked on the same way at once and handed it back in the same tick (fuzz
+    # seed 7, s7-0123). A robot blocked on its way to a place is held off every job whose
+    # first stop is that place, for the hold.
+    world = dispatch_world(1)
+    a, b = blocked_on_the_way_to_goal(world)
+    (robot,) = world.robots.values()
+    assert robot.job is None and a.open and b.open
+    assert world.dispatch.held_off(b) == {robot.id} and not b.held_off(world.env.now)
+    world.env.run(until=world.env.now + HOLD / 2)
+    assert robot.job is None
+    world.env.run(until=world.env.now + HOLD / 2 + 0.5)
+    assert robot.job is not None and robot.job in (a, b)
+
+
+def test_a_robot_blocked_on_its_way_to_a_station_takes_a_job_elsewhere_at_once():
+    world = dispatch_world(1)
+    blocked_on_the_way_to_goal(world)
+    (robot,) = world.robots.values()
+    depot = world.floor.station("depot_a")
+    elsewhere = JobRecord(Job("j_depot", depot.name, depot.x, depot.y, world.env.now))
+    world.jobs.append(elsewhere)
+    world.dispatch.request()
+    world.dispatch.run_pending()
+    assert robot.job is elsewhere

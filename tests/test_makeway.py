@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import event, example, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, box
 
@@ -111,3 +112,57 @@ def test_the_idle_robot_holds_its_spot_until_the_stuck_robot_moves_on(world: Wor
         assert make_way.goal_of(idle, 1.0) == idle.home
     finally:
         stuck.faulted = False
+
+
+@pytest.fixture(scope="module")
+def world3() -> World:
+    # At a period of 0.8 s the step a robot may take unseen is 0.45 m: the gaps are wider.
+    sc = load_scenario(CASE / "scen.toml")
+    w = World(replace(sc, robots=(replace(sc.robots[0], count=3, period_s=0.8),)))
+    yield w
+    w._close_bus()
+
+
+@settings(max_examples=60, deadline=None)
+@given(xy=st.lists(st.tuples(st.floats(1.0, 29.0), st.floats(1.0, 19.0)), min_size=3, max_size=3))
+@example(xy=[(1.0, 1.0), (1.0, 2.0), (2.0, 1.0)])  # shut in a corner: the stuck robot backs off
+def test_the_way_aside_keeps_the_followers_gap_from_every_robot(world3: World, xy) -> None:
+    # A robot packed in among others at a depot was sent to a spot past one of them (0.54 m
+    # from it, where the follower keeps 0.73 m) and never moved; at a period of 0.5 s one sent
+    # 1.13 m off the stuck robot's goal, where that keeps 1.3 m, left it shut out (fuzz seed
+    # 7, s7-0064). The way keeps radii + max(0.2, 0.1 + sqrt(2) a_max dt^2) from every robot
+    # (or, already closer, never closes in), the spot that plus 0.2 m off the route.
+    idle, stuck, third = (world3.robots[r] for r in ("r01", "r02", "r03"))
+    hall, _ = hall_from_map()
+    if not all(hall.covers(Point(p)) for p in xy):
+        return
+    for robot, p in zip((idle, stuck, third), xy, strict=True):
+        robot.x, robot.y = p
+        robot.aside, robot.watched_goal = None, None
+    r = idle.spec.radius
+    if any(math.dist(p, q) < 2 * r for i, p in enumerate(xy) for q in xy[i + 1 :]):
+        return
+    goal = (idle.x, idle.y)
+    fresh(world3).ask(stuck, goal, [idle], t=0.0)
+    event("spot found" if idle.aside is not None else "no spot")
+    if idle.aside is None:
+        return
+    spot = idle.aside.spot
+    spec = idle.spec
+    kept = 0.1 + math.sqrt(2.0) * spec.a_max * spec.period**2
+    leg = LineString([xy[0], spot])
+    # Shut in by the stuck robot (no spot off its route it could reach), the idle robot is let
+    # out past it once the stuck robot has backed off its way: that one's way is then kept.
+    backs = stuck.aside is not None and stuck.aside.made_way_for == idle.id
+    event("stuck robot backs off" if backs else "way kept from both")
+    others = ((third, xy[2]),) if backs else ((stuck, xy[1]), (third, xy[2]))
+    for other, p in others:
+        reach = min(r + other.spec.radius + max(OTHERS_M, kept), math.dist(xy[0], p))
+        assert leg.distance(Point(p)) >= reach - 1e-6
+    route = LineString([xy[1], goal])
+    assert route.distance(Point(spot)) >= 2 * r + kept + OTHERS_M - 1e-9
+    if backs:
+        back = LineString([xy[1], stuck.aside.spot])
+        for p in (xy[0], xy[2]):
+            reach = min(2 * r + max(OTHERS_M, kept), math.dist(xy[1], p))
+            assert back.distance(Point(p)) >= reach - 1e-6

@@ -36,6 +36,9 @@ REANNOUNCE_S = 5.0
 #: scenario detects no deadlocks (otherwise `Scenario.deadlock_after_s`, the time over which
 #: the block was judged).
 HANDBACK_HOLD_S = 30.0
+#: A job whose first stop is this close (m) to where a robot was blocked on its way to is
+#: not given to that robot during the hold.
+BLOCKED_SAME_M = 1e-6
 
 
 class Dispatch:
@@ -77,6 +80,22 @@ class Dispatch:
         self._announced_s: dict[str, float] = {}
         #: Robots the charging policy keeps from new jobs (`fleet.engine.energy`).
         self.off_duty: set[str] = set()
+        #: Robots that handed a job back as blocked: where they were blocked on their way to,
+        #: and until when they are not given a job whose first stop is that place.
+        self._blocked_to: dict[str, tuple[tuple[float, float], float]] = {}
+
+    def held_off(self, rec: JobRecord) -> set[str]:
+        """The robots not to be given `rec` now: those that handed it back lately, and those
+        blocked lately on their way to its first stop. Several jobs to one station went round
+        the robots stuck in front of it: each took the next job there, was blocked at once on
+        the same way and handed it back in the same tick (fuzz seed 7, s7-0123)."""
+        t = self.env.now
+        first = (rec.via[0][1], rec.via[0][2]) if rec.via else (rec.job.x, rec.job.y)
+        return rec.held_off(t) | {
+            robot
+            for robot, (where, until) in self._blocked_to.items()
+            if t < until and math.dist(where, first) <= BLOCKED_SAME_M
+        }
 
     def available(self, robot: RobotState) -> bool:
         """Whether `robot` may be given jobs: in service and not kept off duty to charge."""
@@ -116,7 +135,7 @@ class Dispatch:
         for rec in open_jobs:
             if not rec.open:
                 continue
-            held = rec.held_off(self.env.now)
+            held = self.held_off(rec)
             free = {
                 r.id
                 for r in self.robots.values()
@@ -163,13 +182,12 @@ class Dispatch:
     def award(self, bids: list[Bid]) -> None:
         """Let the dispatcher award announced jobs from this round's bids."""
         open_jobs = {rec.job.id: rec for rec in self.jobs if rec.open}
-        t = self.env.now
         valid = [
             b
             for b in bids
             if b.job in open_jobs
             # A robot that gave a job back lately does not win it again yet.
-            and b.robot not in open_jobs[b.job].held_off(t)
+            and b.robot not in self.held_off(open_jobs[b.job])
             and b.robot in self.robots
             and self.available(self.robots[b.robot])
             and not self.robots[b.robot].queue
@@ -227,7 +245,7 @@ class Dispatch:
                 self.recorder.stats["assignments_rejected"] += 1
                 log.warning("dispatcher %r made an invalid assignment %r; ignored", name, a)
                 continue
-            if robot.id in rec.held_off(self.env.now):
+            if robot.id in self.held_off(rec):
                 # It gave this job back as blocked lately: the job goes to another robot.
                 self.recorder.stats["assignments_declined"] += 1
                 declined.append((rec, robot.id))
@@ -290,6 +308,8 @@ class Dispatch:
             rec.handed_back_by.add(robot.id)
             hold = self.scenario.deadlock_after_s or HANDBACK_HOLD_S
             rec.held_until[robot.id] = t + hold
+            if robot.watched_goal is not None:
+                self._blocked_to[robot.id] = (robot.watched_goal, t + hold)
             # Offer it again when the hold ends, in case nobody else took it meanwhile.
             self.env.timeout(hold).callbacks.append(lambda _event: self.request())
         self.recorder.stats["jobs_handed_back"] += 1

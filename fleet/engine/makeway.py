@@ -42,6 +42,11 @@ log = logging.getLogger("fleet.engine")
 AWAY_M = 0.5
 #: Gap (m) kept from every other robot, on top of the two radii.
 OTHERS_M = 0.2
+#: The gap (m) a controller keeps on top of the radii and the unseen step (the follower's
+#: default margin): a way aside must keep it from the stuck robot, or it is not driven.
+FOLLOWER_MARGIN_M = 0.1
+#: A robot let out to a spot nearby is there (m), for the one that backed off for it.
+ARRIVED_M = 0.1
 #: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the robot.
 RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 #: Candidate directions on each ring.
@@ -69,6 +74,13 @@ class Aside:
     until: float
     #: The job the robot had when it stepped aside (None: idle); another one ends the wait.
     job: str | None = None
+
+
+def kept_gap(robot: RobotState) -> float:
+    """The gap (m) `robot` keeps from a neighbour on top of the two radii: the follower's
+    margin and the step a neighbour may take unseen in one period (``sqrt(2) a_max dt**2``)."""
+    spec = robot.spec
+    return FOLLOWER_MARGIN_M + math.sqrt(2.0) * spec.a_max * spec.period**2
 
 
 class MakeWay:
@@ -139,27 +151,83 @@ class MakeWay:
                     robot.id,
                     stuck.id,
                 )
+                # Shut in (a dead end, a station in a pocket) by the stuck robot itself: that
+                # one backs off the way the other has to leave by, and comes back once it is out.
+                self._back_off(stuck, robot, goal, route, t)
                 continue
-            away = robot.spec.radius + stuck.spec.radius + AWAY_M
-            robot.aside = Aside(
-                spot,
-                stuck.id,
-                goal,
-                math.hypot(goal[0] - stuck.x, goal[1] - stuck.y),
-                PASSED_FACTOR * away,
-                t + self.hold_s,
-                None if robot.job is None else robot.job.job.id,
-            )
-            self.recorder.stats["made_way"] += 1
-            self.recorder.event(t, "make_way", job, robot.id, stuck.id)
-            log.info(
-                "t = %.2f s: robot %s steps aside to (%.2f, %.2f) for %s",
-                t,
-                robot.id,
-                spot[0],
-                spot[1],
-                stuck.id,
-            )
+            self._send_aside(robot, stuck, spot, goal, job, t)
+
+    def _send_aside(
+        self,
+        robot: RobotState,
+        stuck: RobotState,
+        spot: tuple[float, float],
+        goal: tuple[float, float],
+        job: str,
+        t: float,
+        nearby: bool = False,
+    ) -> None:
+        """Send `robot` to `spot`, off the way of `stuck` (heading for `goal`); with `nearby`,
+        `stuck` is past once it is at `goal` however near that is (a robot let out of a corner
+        to a spot close by)."""
+        away = robot.spec.radius + stuck.spec.radius + AWAY_M
+        gap = math.hypot(goal[0] - stuck.x, goal[1] - stuck.y)
+        passed = PASSED_FACTOR * away
+        if nearby:
+            passed = min(passed, max(gap - ARRIVED_M, 0.0))
+        robot.aside = Aside(
+            spot,
+            stuck.id,
+            goal,
+            gap,
+            passed,
+            t + self.hold_s,
+            None if robot.job is None else robot.job.job.id,
+        )
+        self.recorder.stats["made_way"] += 1
+        self.recorder.event(t, "make_way", job, robot.id, stuck.id)
+        log.info(
+            "t = %.2f s: robot %s steps aside to (%.2f, %.2f) for %s",
+            t,
+            robot.id,
+            spot[0],
+            spot[1],
+            stuck.id,
+        )
+
+    def _back_off(
+        self,
+        stuck: RobotState,
+        blocker: RobotState,
+        goal: tuple[float, float],
+        route: shapely.Geometry,
+        t: float,
+    ) -> None:
+        """`blocker` has no spot off `stuck`'s route (to `goal`) it can reach without closing in
+        on `stuck`: send `stuck` off the blocker's own way instead. A blocker with somewhere to
+        go is let go there; one parked for good (idle, not going home) is sent to the spot off
+        `stuck`'s route it would take were `stuck` not in the way, once `stuck` has backed off
+        its way there."""
+        if stuck.aside is not None or not stuck.in_service:
+            return
+        theirs = blocker.watched_goal
+        parked = theirs is None or math.hypot(theirs[0] - blocker.x, theirs[1] - blocker.y) < 1e-9
+        if parked:
+            theirs = self._spot(blocker, stuck, route, past=True)
+            if theirs is None:
+                return
+            way = self._way(blocker, theirs)
+        else:
+            way = self._route(blocker, theirs)
+        spot = self._spot(stuck, blocker, way)
+        if spot is None:
+            return
+        self.recorder.stats["backed_off"] += 1
+        job = "" if blocker.job is None else blocker.job.job.id
+        self._send_aside(stuck, blocker, spot, theirs, job, t, nearby=parked)
+        if parked:
+            sid = "" if stuck.job is None else stuck.job.job.id
+            self._send_aside(blocker, stuck, theirs, goal, sid, t)
 
     def in_the_way(
         self, stuck: RobotState, goal: tuple[float, float], t: float
@@ -192,7 +260,11 @@ class MakeWay:
         if t >= aside.until or job != aside.job:
             return False
         other = self.robots.get(aside.made_way_for)
-        if other is None or not other.in_service or other.watched_goal != aside.their_goal:
+        if other is None or not other.in_service:
+            return False
+        # The other may be backing off to let this one out first: it still comes.
+        backing = other.aside is not None and other.aside.made_way_for == robot.id
+        if other.watched_goal != aside.their_goal and not backing:
             return False
         gx, gy = aside.their_goal
         closer = math.hypot(gx - other.x, gy - other.y) < aside.their_gap - aside.passed_m
@@ -222,12 +294,18 @@ class MakeWay:
         return shapely.union_all([LineString(w) for w in lines] + [Point(goal)])
 
     def _spot(
-        self, robot: RobotState, stuck: RobotState, route: shapely.Geometry
+        self,
+        robot: RobotState,
+        stuck: RobotState,
+        route: shapely.Geometry,
+        past: bool = False,
     ) -> tuple[float, float] | None:
         """The nearest spot on `RINGS` round `robot` it can drive to that is off `route` and
-        clear of the other robots; on one ring, the one furthest from the route."""
+        clear of the other robots; on one ring, the one furthest from the route. With `past`,
+        the way there may pass close to `stuck` (which backs off first)."""
         free = self.floor.free_space
-        away = robot.spec.radius + stuck.spec.radius + AWAY_M
+        # Off the route by more than the stuck robot keeps from a neighbour, or it could not pass.
+        away = robot.spec.radius + stuck.spec.radius + max(AWAY_M, kept_gap(stuck) + OTHERS_M)
         others = [
             (o.x, o.y, robot.spec.radius + o.spec.radius + OTHERS_M)
             for o in self.robots.values()
@@ -247,25 +325,46 @@ class MakeWay:
                     continue
                 if any(math.hypot(x - ox, y - oy) < d for ox, oy, d in others):
                     continue
-                if not self._reachable(robot, stuck, (x, y)):
+                if not self._reachable(robot, stuck, (x, y), past):
                     continue
                 best, best_gap = (x, y), gap
             if best is not None:
                 return best
         return None
 
-    def _reachable(self, robot: RobotState, stuck: RobotState, spot: tuple[float, float]) -> bool:
-        """Whether `robot` can drive to `spot` without coming within reach of `stuck`: straight
-        if the free space holds the segment, else along the path layer's path."""
+    def _way(self, robot: RobotState, spot: tuple[float, float]) -> LineString | None:
+        """`robot`'s way to `spot`: straight if the free space holds the segment, else along
+        the path layer's path; None without one."""
         leg = LineString([(robot.x, robot.y), spot])
-        if not self.floor.free_space.covers(leg):
-            try:
-                waypoints = self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints
-            except NoPathError:
-                return False
-            leg = LineString(waypoints)
+        if self.floor.free_space.covers(leg):
+            return leg
+        try:
+            return LineString(self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints)
+        except NoPathError:
+            return None
+
+    def _reachable(
+        self, robot: RobotState, stuck: RobotState, spot: tuple[float, float], past: bool = False
+    ) -> bool:
+        """Whether `robot` can drive to `spot` (`_way`) without coming within reach of `stuck`
+        or any other robot (with `past`, it may pass `stuck`, which backs off first)."""
+        leg = self._way(robot, spot)
+        if leg is None:
+            return False
         # Robots stuck together may already stand closer than that: then never any closer.
-        there = Point(stuck.x, stuck.y)
-        now = there.distance(Point(robot.x, robot.y))
-        reach = min(robot.spec.radius + stuck.spec.radius + OTHERS_M, now)
-        return leg.distance(there) >= reach - 1e-6
+        # Besides the gap, a robot keeps clear of the step a neighbour may take unseen within
+        # one period (a_max*dt**2 per axis): a way that passes closer is one its controller
+        # refuses to drive, and the robot would hold where it stands for good.
+        # The same holds for every other robot on the way (a robot packed in among others at a
+        # depot was sent to a spot past one of them, 0.54 m from it, and never moved).
+        spec = robot.spec
+        gap = max(OTHERS_M, kept_gap(robot))
+        for o in self.robots.values():
+            if o is robot or (past and o is stuck):
+                continue
+            there = Point(o.x, o.y)
+            now = there.distance(Point(robot.x, robot.y))
+            reach = min(spec.radius + o.spec.radius + gap, now)
+            if leg.distance(there) < reach - 1e-6:
+                return False
+        return True

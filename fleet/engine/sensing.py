@@ -201,7 +201,7 @@ class Sensing:
             and (
                 o.job is None
                 or (
-                    o.stalled
+                    _no_progress(o, t, after)
                     and priority[o.id] < priority[r.id]
                     and o.goal is not None
                     and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
@@ -339,6 +339,13 @@ def thin_plan(
         out.pop()  # keep the last sample, not one a moment before it
     out.append(plan[-1])
     return tuple(out)
+
+
+def _no_progress(r: RobotState, t: float, after: float) -> bool:
+    """Whether `r` has had a goal and got no closer to it for `after` seconds: stuck, whether
+    or not it found anyone to blame (two robots stuck short of one station each take the other
+    for one waiting its turn there, and neither would ever be asked to move)."""
+    return r.watched_goal is not None and t - r.progress_s >= after - 1e-9
 
 
 def _sample_time(sample: tuple[float, float, float]) -> float:

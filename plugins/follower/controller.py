@@ -265,7 +265,10 @@ class PathFollower(Controller):
             failure = ControlStatus.FALLBACK if route is None else ControlStatus.BLOCKED
             attempt = (goal, obs.x, obs.y, cap, key)
             if self._failed == attempt:
-                return self._brake(obs, failure)
+                if route is None or not self._guard.blockers_moved(obs):
+                    return self._brake(obs, failure)
+                route = self._guard.rebuild(obs)  # a blocker moved: it may have freed a way
+                key = None if route is None else route.key
             try:
                 if route is None:
                     planner = self._planners.at(cap)

@@ -22,7 +22,11 @@ if TYPE_CHECKING:
     from fleet.floor import Floor
     from fleet.paths import PathPlanner
 
-__all__ = ["Guard"]
+__all__ = ["Guard", "MOVED_M"]
+
+#: A blocker that moved further than this (m) since a detour round it found no way is looked
+#: at again where it stands now.
+MOVED_M = 0.1
 
 
 class Guard:
@@ -138,6 +142,24 @@ class Guard:
             self._blockers = blockers
             self.detour = self._build_detour(obs)
         return self.detour
+
+    def blockers_moved(self, obs: Observation) -> bool:
+        """Whether a blocker of the current detour now stands more than `MOVED_M` from where
+        it stood when the detour was built: a detour that found no way may find one now (the
+        blocker stepped aside), and the robot must look again instead of holding for good."""
+        if self.detour is None:
+            return False
+        seen = {n.robot: n for n in obs.neighbours}
+        for name, x, y, _ in self._blockers:
+            n = seen.get(name)
+            if n is not None and math.hypot(n.x - x, n.y - y) > MOVED_M:
+                return True
+        return False
+
+    def rebuild(self, obs: Observation) -> Detour | None:
+        """The detour built anew round the blockers where they stand now."""
+        self.detour = None
+        return self.route(obs)
 
     def detour_planner(self, obs: Observation, cap: float) -> PathPlanner | None:
         """The detour's planner at speed `cap`, rebuilt if the robot stands in a blocker's
