@@ -8,12 +8,16 @@ twice: by the engine's safety checker (at the samples) and here, between the sam
 robots move in straight lines over a step, so the closest approach of their recorded
 trajectories is exact). Two fixes ended them: a fallback plan is checked between samples
 (`neighbours.clear_of_neighbours`), and a plan keeps clear of each moving robot's braking path
-as well as its plan (`neighbours.robots_to_avoid`). The last, robots that see each other too
-late to stop, is left as a strict xfail.
+as well as its plan (`neighbours.robots_to_avoid`). The last, robots that see each other late
+on a diagonal, ended when a higher robot judged a lower one close from both robots' real
+velocities and braking paths (`neighbours.close`; ``v_max`` is per axis, so diagonals are up to
+sqrt(2) times faster) and, with a lower robot close, only follows its plan or brakes instead of
+re-planning at the same time as that one (`neighbours.must_hold`).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +30,7 @@ from fleet.floor import Floor, FloorSpec, Obstacle, SpeedZone, Station, compile_
 from fleet.paths import PathPlanner
 from fleet.plugins import Neighbour, Observation, RobotSpec
 from fleet.scenario import JobsConfig, PluginChoice, RobotsConfig, Scenario, ScriptedJob
-from fleet_plugins.mpc.neighbours import clear_of_neighbours, closest_approach
+from fleet_plugins.mpc.neighbours import clear_of_neighbours, close, closest_approach, must_hold
 
 RADIUS = 0.3
 
@@ -138,6 +142,34 @@ def test_a_fallback_plan_through_a_neighbour_between_samples_is_not_clear() -> N
         neighbours=(Neighbour("r2", aside[0][1], 0.7, -1.25, 0.0, RADIUS, 0, aside),),
     )  # fmt: skip
     assert clear_of_neighbours(obs, SPEC, mine)
+
+
+def test_a_lower_robot_is_close_from_farther_on_a_diagonal_and_never_when_moving_apart() -> None:
+    half = 2 * RADIUS + 0.1
+    me = Observation("r1", 0, 0.0, 0.0, 0.0, 0.0, 0.0, goal=(9.0, 9.0), priority=2)
+
+    def other(x: float, y: float, vx: float, vy: float) -> Neighbour:
+        return Neighbour(
+            "r2", x, y, vx, vy, RADIUS, 1, ((0.0, x, y), (5.0, x + 5 * vx, y + 5 * vy))
+        )
+
+    # Head-on along an axis at 1 m/s each: close below 0.7 + 1.75 + 1.25 = 3.7 m ...
+    axis = replace(me, vx=1.0)
+    assert not close(axis, other(3.75, 0.0, -1.0, 0.0), SPEC, half)
+    assert close(axis, other(3.65, 0.0, -1.0, 0.0), SPEC, half)
+    # ... on a diagonal at (0.88, 0.99) m/s each (1.32 m/s) 4.17 m apart is (the late floor's).
+    u = np.array([0.88, 0.99]) / np.hypot(0.88, 0.99)
+    diagonal = replace(me, vx=0.88, vy=0.99)
+    assert close(diagonal, other(*(4.17 * u), -0.88, -0.99), SPEC, half)
+    assert must_hold(
+        replace(diagonal, neighbours=(other(*(4.17 * u), -0.88, -0.99),)), SPEC, 10, 0.1
+    )
+    # Moving apart: never close, however near.
+    assert not close(replace(me, vx=-1.0), other(1.0, 0.0, 1.0, 0.0), SPEC, half)
+    # A robot that outranks this one is never one to hold for.
+    assert not must_hold(
+        replace(diagonal, priority=0, neighbours=(other(*(4.17 * u), -0.88, -0.99),)), SPEC, 10, 0.1
+    )
 
 
 def diagonal_floor() -> Floor:
@@ -254,7 +286,10 @@ def test_mpc_robots_that_re_plan_at_once_close_by_never_touch() -> None:
     # 3.75 m apart at 23.0 s; both brake (infeasible solves); at 24.0 s, 1.405 m apart, both
     # solve again, each keeping clear of the other's published braking path, and both leave it
     # (0.5 m/s^2 sideways): they pass 0.389 m apart at 25.0 s. Separation holds only against the
-    # other's last plan, never against its simultaneous change of plan
+    # other's last plan, never against its simultaneous change of plan. Judging 'close' from
+    # real velocities alone (the higher robot then keeps clear from 4.38 m) brought that back:
+    # both braked, then both re-planned at once at 24.5 s into the same gap (0.546 m): with a
+    # lower robot close, the higher one now only follows its plan or brakes
     summary, closest = run_property_scenario(swerve_floor(), 4.776416303967776)
     assert summary["violations"]["collision"] == 0
     assert closest >= 2 * RADIUS
@@ -352,20 +387,14 @@ def late_floor() -> Floor:
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "issue 16, not fixed (late reaction): first seen 4.17 m apart at 39.5 s (5.48 m at "
-        "39.0 s), closing diagonally at 2.65 m/s; the lower robot brakes, the higher one keeps "
-        "its course one more step (its 'close' threshold, 0.7 + v_max^2/a_max + 2 v_max dt = "
-        "3.7 m, assumes 1 m/s along an axis; it goes at 1.3 m/s) and then brakes: 0.427 m at "
-        "41.5 s (both braking at once at 39.5 s: 0.928 m). Counting real speeds in that "
-        "threshold did not end it on this floor (the run changes; 0.553 m at 42.0 s); 5 m of "
-        "sensing (the scenario rule asks 3.6 m) leaves too little at 0.5 s ticks and "
-        "diagonal speeds (7 m: no contact in 240 examples)"
-    ),
-)
 def test_mpc_robots_that_see_each_other_late_on_a_diagonal_never_touch() -> None:
+    # Before the higher robot judged 'close' from real velocities (late reaction): first seen
+    # 4.17 m apart at 39.5 s (5.48 m at 39.0 s), closing diagonally at 2.65 m/s; the lower robot
+    # brakes, the higher one keeps its course one more step (its 'close' threshold, 0.7 +
+    # v_max^2/a_max + 2 v_max dt = 3.7 m, assumed 1 m/s along one axis; it went at 1.3 m/s) and
+    # then brakes: 0.427 m at 41.5 s at the samples, 0.253 m between them. Now both brake at
+    # 39.5 s and pass 0.67 m apart
     summary, closest = run_property_scenario(late_floor(), 3.488387418106415)
     assert summary["violations"]["collision"] == 0
     assert closest >= 2 * RADIUS
+    assert summary["jobs"]["completed"] == 2  # not vacuous: both drove past each other

@@ -32,7 +32,12 @@ from fleet.plugins import (
 from fleet_plugins.mpc.fallback import brake, follow_previous
 from fleet_plugins.mpc.horizon import region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
-from fleet_plugins.mpc.neighbours import clear_of_neighbours, robots_to_avoid
+from fleet_plugins.mpc.neighbours import (
+    clear_of_boxes,
+    clear_of_neighbours,
+    must_hold,
+    robots_to_avoid,
+)
 from fleet_plugins.mpc.options import check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.separation import Separation, build_separation, spans
@@ -75,9 +80,10 @@ class MPCController(Controller):
     (`separation`). The margin is soft (a heavy cost), contact is not. With
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
     on a tie, the smaller robot id), and of the robots it outranks only when they are parked
-    for the whole horizon or close (`neighbours` says why). A moving robot's square covers both
-    its plan and its braking path (it may drop its plan at its next tick). At most
-    ``max_neighbours`` robots, the nearest, are constrained.
+    for the whole horizon or close (`neighbours` says why); with a moving lower robot close it
+    does not solve but follows its previous plan while that keeps clear, else brakes. A moving
+    robot's square covers both its plan and its braking path (it may drop its plan at its next
+    tick). At most ``max_neighbours`` robots, the nearest, are constrained.
 
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
     error) the controller falls back: the previous plan shifted by one step if the robot is on
@@ -217,6 +223,13 @@ class MPCController(Controller):
             end = obs.t + self.horizon * dt
             plan = ((obs.t, obs.x, obs.y), (end, obs.x + dt * obs.vx, obs.y + dt * obs.vy))
             return Command(-obs.vx / dt + 0.0, -obs.vy / dt + 0.0, ControlStatus.OK, plan)
+        if (
+            self.avoid_robots
+            and self.respect_priority
+            and obs.neighbours
+            and must_hold(obs, spec, self.horizon, self.separation_margin_m)
+        ):
+            return self._hold(obs, goal)
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
             return brake(obs, spec, self.horizon, ControlStatus.FALLBACK)
         assert self._trip is not None and self._model is not None
@@ -377,6 +390,36 @@ class MPCController(Controller):
             max(abs(last.p[1, 0] - obs.x), abs(last.p[1, 1] - obs.y)) <= PLAN_MATCH
             and max(abs(last.v[1, 0] - obs.vx), abs(last.v[1, 1] - obs.vy)) <= PLAN_MATCH
         )
+
+    def _hold(self, obs: Observation, goal: tuple[float, float]) -> Command:
+        """With a lower robot close (`neighbours.must_hold`): follow the previous plan if the
+        robot is on it and it keeps clear of every robot to avoid (each one's box round its
+        plan and braking path), else brake; no solve.
+
+        The lower robot keeps clear of this one's published plan and braking path, assuming
+        this one does one or the other; a new plan made at the same tick as the lower robot's
+        escaped both (the two robots swerved into the same gap: tests/test_mpc_contact.py).
+        """
+        spec = self.context.spec
+        last = self._last
+        if goal == self._goal and self._on_plan(obs) and last is not None and last.p is not None:
+            unbounded = np.full((self.horizon + 1, 2), np.inf)
+            boxes = robots_to_avoid(
+                obs,
+                spec,
+                self.horizon,
+                -unbounded,
+                unbounded,
+                margin=self.separation_margin_m,
+                respect_priority=self.respect_priority,
+            )
+            shifted_p = np.vstack([last.p[1:], last.p[-1:]])
+            if clear_of_boxes(shifted_p, boxes) and clear_of_neighbours(obs, spec, shifted_p):
+                command, shifted = follow_previous(obs, last, spec.period, None)
+                self._last, self._last_t = shifted, obs.t
+                return Command(command.ax, command.ay, ControlStatus.OK, command.plan)
+        self._last = None
+        return brake(obs, spec, self.horizon, ControlStatus.OK)
 
     # -- fallbacks ------------------------------------------------------------------------------
     def _fallback(self, obs: Observation, report: SolveReport) -> Command:

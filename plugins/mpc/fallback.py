@@ -21,7 +21,7 @@ REST_SPEED = 1e-9
 
 
 def follow_previous(
-    obs: Observation, last: Solution, dt: float, report: SolveReport
+    obs: Observation, last: Solution, dt: float, report: SolveReport | None
 ) -> tuple[Command, Solution]:
     """The previous plan's next input, as a FALLBACK command whose plan is the rest of it;
     and that plan moved one step on, to be followed again should the next solve fail too."""

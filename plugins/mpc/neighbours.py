@@ -3,13 +3,22 @@
 A robot needs keeping clear of when its predicted square can come within reach of the plan
 (the reachable boxes, narrowed to the regions each step may use) and, with
 ``respect_priority``, it outranks this one wherever it is, and only when parked for the whole
-horizon or close (closer than two robots at full speed need to stop, plus a step each) if this
-one outranks it. The higher one thus keeps its course unless the lower one is close (when
-both yielded at any distance, both swerved alike and met again: measured head-on). A moving
-robot may carry on with its plan or drop it at its next tick (to brake when its solve fails, or
-to re-plan, as this one does at the same time), so the plan keeps clear of the box round both
-its plan and its braking path; only a robot parked for the horizon is a plain square.
-`separation` turns the chosen ones into rows.
+horizon or close (`close`) if this one outranks it. The higher one thus keeps its course unless
+the lower one is close (when both yielded at any distance, both swerved alike and met again:
+measured head-on). A moving robot may carry on with its plan or drop it at its next tick (to
+brake when its solve fails, or to re-plan, as this one does at the same time), so the plan
+keeps clear of the box round both its plan and its braking path; only a robot parked for the
+horizon is a plain square. `separation` turns the chosen ones into rows.
+
+Close means: should this robot keep its course one more tick and then brake while the other
+brakes now, they could meet. It is judged from both robots' real velocities and braking paths,
+not from one distance for ``v_max`` along an axis: ``v_max`` bounds each axis, so a robot on a
+diagonal goes up to sqrt(2) times as fast and brakes over up to sqrt(2) times the distance (a
+higher robot on a diagonal kept its course from 4.17 m, thinking 3.7 m enough, and met the
+lower one: tests/test_mpc_contact.py). With a close lower robot, the higher one does not
+re-plan (`must_hold`): the lower one keeps clear of its plan and its braking path, so it only
+follows its plan (while that keeps clear) or brakes; when both re-planned at once, both
+swerved into the same gap.
 """
 
 from __future__ import annotations
@@ -22,7 +31,15 @@ from fleet.plugins import Neighbour, Observation, RobotSpec
 from fleet_plugins.mpc.fallback import braking_path
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
-__all__ = ["robots_to_avoid", "clear_of_neighbours", "closest_approach", "outranks"]
+__all__ = [
+    "robots_to_avoid",
+    "clear_of_neighbours",
+    "closest_approach",
+    "outranks",
+    "close",
+    "must_hold",
+    "clear_of_boxes",
+]
 
 
 def robots_to_avoid(
@@ -38,8 +55,6 @@ def robots_to_avoid(
     """The robots of `obs.neighbours` the plan must keep clear of, nearest first (on a tie,
     by robot id); `p_lo`, `p_hi` bound where each point of the plan can be."""
     N, dt = horizon, spec.period
-    # Within this, two robots at full speed could not stop before they met.
-    near = spec.v_max**2 / spec.a_max + 2.0 * spec.v_max * dt
     picked: list[tuple[float, str, Obstacle]] = []
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, N)
@@ -47,8 +62,8 @@ def robots_to_avoid(
         distance = math.hypot(n.x - obs.x, n.y - obs.y)
         ob = Obstacle.square(n.robot, centres, half, margin)
         moving = not at_rest(centres)
-        if respect_priority and moving and outranks(obs, n) and distance >= half + near:
-            continue  # it yields to this robot; this one keeps its course
+        if respect_priority and moving and outranks(obs, n) and not close(obs, n, spec, half):
+            continue  # it yields to this robot (braking if it must); this one keeps its course
         if moving:
             # A moving robot may carry on with its plan, or drop it at its next tick to brake
             # (a failed solve) or to re-plan: keep clear of the box round both, whichever robot
@@ -62,6 +77,68 @@ def robots_to_avoid(
         picked.append((distance, n.robot, ob))
     picked.sort(key=lambda item: (item[0], item[1]))
     return [ob for _, _, ob in picked]
+
+
+def close(obs: Observation, n: Neighbour, spec: RobotSpec, half: float) -> bool:
+    """Whether lower-priority robot `n` is close: should this robot keep its course for one
+    more tick (at its present velocity, its input then anything within the bound) and only then
+    brake, while `n` brakes now, their centres could come within `half` (between the samples
+    too). Braking runs along the line of travel, so a diagonal one runs up to sqrt(2) times as
+    far as one along an axis at the same per-axis speed (`v_max` bounds each axis); a robot
+    only sees another at its ticks, hence the tick of keeping course."""
+    dt, a, N = spec.period, spec.a_max, 10_000
+    theirs = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, a, N))[:, 1:]
+    x1, y1 = obs.x + dt * obs.vx, obs.y + dt * obs.vy
+    for ux, uy in ((0.0, 0.0), (a, a), (a, -a), (-a, a), (-a, -a)):
+        vx = min(max(obs.vx + dt * ux, -spec.v_max), spec.v_max)
+        vy = min(max(obs.vy + dt * uy, -spec.v_max), spec.v_max)
+        later = np.array(braking_path(obs.t + dt, x1, y1, vx, vy, dt, a, N))[:, 1:]
+        mine = np.vstack([[obs.x, obs.y], later])
+        k = max(len(mine), len(theirs))
+        mine = np.vstack([mine, np.repeat(mine[-1:], k - len(mine), 0)])
+        other = np.vstack([theirs, np.repeat(theirs[-1:], k - len(theirs), 0)])
+        if closest_approach(mine, other) < half:
+            return True
+    return False
+
+
+def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
+    """Whether a moving robot that this one outranks is close: so close that, should this
+    robot keep its course one more tick and only then brake (`keep_course_reach`) while the
+    other brakes now (`stopping_distance`), their squares of half-width ``r_i + r_j + margin``
+    could meet. Such a robot relies on this one's published plan or braking path: this one
+    then only follows its plan or brakes (`clear_of_boxes` says which), it does not re-plan."""
+    for n in obs.neighbours:
+        if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
+            continue
+        if close(obs, n, spec, spec.radius + float(n.radius) + margin):
+            return True
+    return False
+
+
+#: Points per step at which `clear_of_boxes` tests a plan against the boxes (between samples).
+BOX_CHECKS_PER_STEP = 8
+
+
+def clear_of_boxes(p: np.ndarray, obstacles: list[Obstacle]) -> bool:
+    """Whether plan `p` (steps 0..N from now) stays out of the hard part of every obstacle's
+    box (`Obstacle.half` less its soft margin) from step 1 to step N, tested at
+    `BOX_CHECKS_PER_STEP` points per step (plan, centres and half-widths interpolated)."""
+    s = np.linspace(0.0, 1.0, BOX_CHECKS_PER_STEP, endpoint=False)[:, None, None]
+    for ob in obstacles:
+        steps = min(len(p), len(ob.centres))
+        q, c = np.asarray(p[1:steps], dtype=float), ob.centres[1:steps]
+        h = ob.half[1:steps] - ob.margin
+        if len(q) == 0:
+            continue
+        if len(q) > 1:  # the points between samples k and k+1
+            q = np.vstack([q[-1:], (q[:-1] + s * np.diff(q, axis=0)).reshape(-1, 2)])
+            c = np.vstack([c[-1:], (c[:-1] + s * np.diff(c, axis=0)).reshape(-1, 2)])
+            h = np.vstack([h[-1:], (h[:-1] + s * np.diff(h, axis=0)).reshape(-1, 2)])
+        inside = np.all(np.abs(q - c) < h - 1e-9, axis=1)
+        if np.any(inside):
+            return False
+    return True
 
 
 def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:
