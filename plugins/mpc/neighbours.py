@@ -10,12 +10,12 @@ brake when its solve fails, or to re-plan, as this one does at the same time), s
 keeps clear of the box round both its plan and its braking path; only a robot parked for the
 horizon is a plain square. `separation` turns the chosen ones into rows.
 
-Close means: should this robot keep its course one more tick and then brake while the other
-brakes now, they could meet. It is judged from both robots' real velocities and braking paths,
-not from one distance for ``v_max`` along an axis: ``v_max`` bounds each axis, so a robot on a
-diagonal goes up to sqrt(2) times as fast and brakes over up to sqrt(2) times the distance (a
-higher robot on a diagonal kept its course from 4.17 m, thinking 3.7 m enough, and met the
-lower one: tests/test_mpc_contact.py). With a close lower robot, the higher one does not
+Close means: should both robots keep their course one more tick and then brake, they could
+meet. It is judged from both robots' real velocities and braking paths, not from one distance
+for ``v_max`` along an axis: ``v_max`` bounds each axis, so a robot on a diagonal goes up to
+sqrt(2) times as fast and brakes over up to sqrt(2) times the distance (a higher robot on a
+diagonal kept its course from 4.17 m, thinking 3.7 m enough, and met the lower one:
+tests/test_mpc_contact.py). With a close lower robot, the higher one does not
 re-plan (`must_hold`): the lower one keeps clear of its plan and its braking path, so it only
 follows its plan (while that keeps clear) or brakes; when both re-planned at once, both
 swerved into the same gap.
@@ -80,26 +80,47 @@ def robots_to_avoid(
 
 
 def close(obs: Observation, n: Neighbour, spec: RobotSpec, half: float) -> bool:
-    """Whether lower-priority robot `n` is close: should this robot keep its course for one
-    more tick (at its present velocity, its input then anything within the bound) and only then
-    brake, while `n` brakes now, their centres could come within `half` (between the samples
-    too). Braking runs along the line of travel, so a diagonal one runs up to sqrt(2) times as
-    far as one along an axis at the same per-axis speed (`v_max` bounds each axis); a robot
-    only sees another at its ticks, hence the tick of keeping course."""
-    dt, a, N = spec.period, spec.a_max, 10_000
-    theirs = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, a, N))[:, 1:]
-    x1, y1 = obs.x + dt * obs.vx, obs.y + dt * obs.vy
-    for ux, uy in ((0.0, 0.0), (a, a), (a, -a), (-a, a), (-a, -a)):
-        vx = min(max(obs.vx + dt * ux, -spec.v_max), spec.v_max)
-        vy = min(max(obs.vy + dt * uy, -spec.v_max), spec.v_max)
-        later = np.array(braking_path(obs.t + dt, x1, y1, vx, vy, dt, a, N))[:, 1:]
-        mine = np.vstack([[obs.x, obs.y], later])
-        k = max(len(mine), len(theirs))
-        mine = np.vstack([mine, np.repeat(mine[-1:], k - len(mine), 0)])
-        other = np.vstack([theirs, np.repeat(theirs[-1:], k - len(theirs), 0)])
-        if closest_approach(mine, other) < half:
-            return True
+    """Whether lower-priority robot `n` is close: should both robots keep their course for one
+    more tick (each at its present velocity, its input then anything within the bound) and only
+    then brake, their centres could come within `half` (between the samples too).
+
+    A robot only sees another at its ticks, hence a tick for this one; the other, at this same
+    tick, may re-plan against this one's last plan (not the one made now) before it brakes,
+    hence a tick for it too (counting only its braking from now, a higher robot sped up towards
+    a lower one that drove on one more tick: tests/test_mpc_contact.py). Braking runs along the
+    line of travel, so a diagonal one runs up to sqrt(2) times as far as one along an axis at
+    the same per-axis speed (`v_max` bounds each axis). `n` is assumed to have this robot's
+    bounds (as for its braking path in `robots_to_avoid`)."""
+    mine = _keep_course_paths(obs.t, obs.x, obs.y, obs.vx, obs.vy, spec)
+    theirs = _keep_course_paths(obs.t, n.x, n.y, n.vx, n.vy, spec)
+    for p in mine:
+        for q in theirs:
+            k = max(len(p), len(q))
+            p_ = np.vstack([p, np.repeat(p[-1:], k - len(p), 0)])
+            q_ = np.vstack([q, np.repeat(q[-1:], k - len(q), 0)])
+            if closest_approach(p_, q_) < half:
+                return True
     return False
+
+
+def _keep_course_paths(
+    t: float, x: float, y: float, vx: float, vy: float, spec: RobotSpec
+) -> list[np.ndarray]:
+    """Positions (from now, one per period) of a robot that keeps its course one tick, with no
+    input or with an input at a corner of the bound, and then brakes until at rest."""
+    dt, a = spec.period, spec.a_max
+    x1, y1 = x + dt * vx, y + dt * vy  # the next position does not depend on the input
+    out = []
+    for ux, uy in ((0.0, 0.0), (a, a), (a, -a), (-a, a), (-a, -a)):
+        wx = min(max(vx + dt * ux, -spec.v_max), spec.v_max)
+        wy = min(max(vy + dt * uy, -spec.v_max), spec.v_max)
+        later = np.array(braking_path(t + dt, x1, y1, wx, wy, dt, a, BRAKE_STEPS))[:, 1:]
+        out.append(np.vstack([[x, y], later]))
+    return out
+
+
+#: At most this many periods of braking in `close` (a robot at rest long before).
+BRAKE_STEPS = 10_000
 
 
 def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
