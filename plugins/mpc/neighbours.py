@@ -91,36 +91,53 @@ def close(obs: Observation, n: Neighbour, spec: RobotSpec, half: float) -> bool:
     line of travel, so a diagonal one runs up to sqrt(2) times as far as one along an axis at
     the same per-axis speed (`v_max` bounds each axis). `n` is assumed to have this robot's
     bounds (as for its braking path in `robots_to_avoid`)."""
-    mine = _keep_course_paths(obs.t, obs.x, obs.y, obs.vx, obs.vy, spec)
-    theirs = _keep_course_paths(obs.t, n.x, n.y, n.vx, n.vy, spec)
-    for p in mine:
-        for q in theirs:
-            k = max(len(p), len(q))
-            p_ = np.vstack([p, np.repeat(p[-1:], k - len(p), 0)])
-            q_ = np.vstack([q, np.repeat(q[-1:], k - len(q), 0)])
-            if closest_approach(p_, q_) < half:
-                return True
-    return False
+    mine = _keep_course_paths(obs.x, obs.y, obs.vx, obs.vy, spec)
+    theirs = _keep_course_paths(n.x, n.y, n.vx, n.vy, spec)
+    # Far apart for any of these paths (each stays within its length of its start): not close.
+    reach = _length(mine) + _length(theirs)
+    if math.hypot(n.x - obs.x, n.y - obs.y) >= half + reach:
+        return False
+    k = max(mine.shape[1], theirs.shape[1])
+    mine = np.concatenate([mine, np.repeat(mine[:, -1:], k - mine.shape[1], 1)], axis=1)
+    theirs = np.concatenate([theirs, np.repeat(theirs[:, -1:], k - theirs.shape[1], 1)], axis=1)
+    # Every pair of paths at once: their offsets (a, b, step, axis), nearest point per step.
+    d = mine[:, None] - theirs[None, :]
+    d0, step = d[:, :, :-1], np.diff(d, axis=2)
+    length2 = np.einsum("abki,abki->abk", step, step)
+    along = np.divide(
+        -np.einsum("abki,abki->abk", d0, step), length2, out=np.zeros_like(length2),
+        where=length2 > 0,
+    )  # fmt: skip
+    nearest = d0 + np.clip(along, 0.0, 1.0)[..., None] * step
+    return bool(np.min(np.hypot(nearest[..., 0], nearest[..., 1])) < half)
 
 
-def _keep_course_paths(
-    t: float, x: float, y: float, vx: float, vy: float, spec: RobotSpec
-) -> list[np.ndarray]:
-    """Positions (from now, one per period) of a robot that keeps its course one tick, with no
-    input or with an input at a corner of the bound, and then brakes until at rest."""
+def _keep_course_paths(x: float, y: float, vx: float, vy: float, spec: RobotSpec) -> np.ndarray:
+    """Positions ``(5, K, 2)`` (from now, one per period, the last repeated) of a robot that
+    keeps its course one tick, with no input or with an input at a corner of the bound, and
+    then brakes along its line of travel until at rest (as `fallback.braking_path`: the
+    fastest axis slows by ``a_max * period`` a period, the other in proportion)."""
     dt, a = spec.period, spec.a_max
-    x1, y1 = x + dt * vx, y + dt * vy  # the next position does not depend on the input
-    out = []
-    for ux, uy in ((0.0, 0.0), (a, a), (a, -a), (-a, a), (-a, -a)):
-        wx = min(max(vx + dt * ux, -spec.v_max), spec.v_max)
-        wy = min(max(vy + dt * uy, -spec.v_max), spec.v_max)
-        later = np.array(braking_path(t + dt, x1, y1, wx, wy, dt, a, BRAKE_STEPS))[:, 1:]
-        out.append(np.vstack([[x, y], later]))
-    return out
+    corners = np.array([[0.0, 0.0], [a, a], [a, -a], [-a, a], [-a, -a]])
+    w = np.clip(np.array([vx, vy]) + dt * corners, -spec.v_max, spec.v_max)  # after the tick
+    fastest = np.max(np.abs(w), axis=1)
+    periods = int(np.ceil(np.max(fastest) / (a * dt) - 1e-12)) if np.max(fastest) > 0 else 0
+    # The fastest axis's speed in each braking period, and the fraction of w it is.
+    speeds = np.clip(fastest[:, None] - a * dt * np.arange(periods), 0.0, None)
+    top = fastest[:, None]
+    share = np.divide(speeds, top, out=np.zeros_like(speeds), where=top > 0)
+    travel = dt * np.cumsum(share[:, :, None] * w[:, None, :], axis=1)
+    start = np.array([x, y])
+    after = start + dt * np.array([vx, vy])  # the next position does not depend on the input
+    return np.concatenate(
+        [np.tile(start, (5, 1, 1)), np.tile(after, (5, 1, 1)), after + travel], axis=1
+    )
 
 
-#: At most this many periods of braking in `close` (a robot at rest long before).
-BRAKE_STEPS = 10_000
+def _length(paths: np.ndarray) -> float:
+    """The longest of `paths` ``(P, K, 2)``, along its steps."""
+    steps = np.diff(paths, axis=1)
+    return float(np.max(np.sum(np.hypot(steps[..., 0], steps[..., 1]), axis=1)))
 
 
 def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
