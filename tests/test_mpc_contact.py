@@ -40,7 +40,14 @@ from fleet.scenario import (
     ScriptedJob,
     sensing_needed,
 )
-from fleet_plugins.mpc.neighbours import clear_of_neighbours, close, closest_approach, must_hold
+from fleet_plugins.mpc.neighbours import (
+    clear_of_boxes,
+    clear_of_neighbours,
+    close,
+    closest_approach,
+    must_hold,
+)
+from fleet_plugins.mpc.separation import Obstacle as RobotBox
 
 RADIUS = 0.3
 
@@ -196,6 +203,17 @@ def test_a_lower_robot_is_close_from_farther_on_a_diagonal_and_never_when_moving
     assert not close(replace(me, vx=-1.0), other(1.0, 0.0, 1.0, 0.0), SPEC, half)
     # Only a robot this one outranks is one to hold for.
     assert not must_hold(replace(diagonal, priority=0, neighbours=near), SPEC, 10, 0.1)
+
+
+def test_a_plan_through_a_box_between_samples_is_not_clear_of_it() -> None:
+    # A box of half-width 0.7 (hard 0.6) round (2, 0), still; a plan along y = 0 at 2.5 m/s
+    # with samples at x = 0.75 and 3.25, outside the box, crosses it between them.
+    box_ = RobotBox.square("r2", np.tile([2.0, 0.0], (4, 1)), 0.7, 0.1)
+    plan = np.array([[-0.5, 0.0], [0.75, 0.0], [3.25, 0.0], [5.75, 0.0]])
+    assert np.all(np.abs(plan[1:, 0] - 2.0) >= 0.6)  # the samples alone keep out
+    assert not clear_of_boxes(plan, [box_])
+    assert clear_of_boxes(plan + [0.0, 0.65], [box_])  # 0.65 m off its line: clear
+    assert not clear_of_boxes(plan + [0.0, 0.55], [box_])
 
 
 def diagonal_floor() -> Floor:

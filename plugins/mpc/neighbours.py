@@ -141,11 +141,10 @@ def _length(paths: np.ndarray) -> float:
 
 
 def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
-    """Whether a moving robot that this one outranks is close: so close that, should this
-    robot keep its course one more tick and only then brake (`keep_course_reach`) while the
-    other brakes now (`stopping_distance`), their squares of half-width ``r_i + r_j + margin``
-    could meet. Such a robot relies on this one's published plan or braking path: this one
-    then only follows its plan or brakes (`clear_of_boxes` says which), it does not re-plan."""
+    """Whether a moving robot that this one outranks is `close` (their centres could come
+    within ``r_i + r_j + margin``). Such a robot relies on this one's published plan or
+    braking path: this one then only follows its plan or brakes (`clear_of_boxes` says which),
+    it does not re-plan."""
     for n in obs.neighbours:
         if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
             continue
