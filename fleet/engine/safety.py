@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
+from scipy.spatial import cKDTree
 
 from fleet.floor import Floor
 from fleet.printing import CapSchedule
@@ -223,22 +224,64 @@ def check_collisions(
     tracks = {
         int(r): (t[a:b], xy[a:b]) for r, a, b in zip(robots, bounds, ends, strict=True) if b > a
     }
-    # The box each robot's track stays in: pairs whose boxes (grown by the radii) never meet
-    # cannot touch.
-    boxes = {r: (p.min(axis=0), p.max(axis=0)) for r, (_, p) in tracks.items()}
     out: list[Violation] = []
-    ids = sorted(tracks)
-    for m, i in enumerate(ids):
-        for j in ids[m + 1 :]:
-            limit = radii_arr[i] + radii_arr[j] - 1e-9
-            (lo_i, hi_i), (lo_j, hi_j) = boxes[i], boxes[j]
-            if np.any(lo_i - hi_j >= limit) or np.any(lo_j - hi_i >= limit):
-                continue
-            for when, d, p in _contacts(*tracks[i], *tracks[j], limit):
-                detail = f"{names[i]} and {names[j]} {d:.3f} m apart"
-                out.append(Violation("collision", names[i], when, p[0], p[1], detail))
+    for i, j in _candidate_pairs(tracks, radii_arr):
+        limit = radii_arr[i] + radii_arr[j] - 1e-9
+        for when, d, p in _contacts(*tracks[i], *tracks[j], limit):
+            detail = f"{names[i]} and {names[j]} {d:.3f} m apart"
+            out.append(Violation("collision", names[i], when, p[0], p[1], detail))
     out.sort(key=lambda v: (v.t, v.robot, v.detail))
     return out
+
+
+#: Length (s) of the time windows in which `_candidate_pairs` boxes each robot's track.
+WINDOW_S = 2.0
+
+
+def _candidate_pairs(
+    tracks: Mapping[int, tuple[np.ndarray, np.ndarray]], radii: np.ndarray
+) -> list[tuple[int, int]]:
+    """Pairs (i < j) of robots whose tracks could come within their radii: per time window of
+    `WINDOW_S`, the box round each track's samples there and the first one after (so it holds
+    every segment that starts in the window), and the pairs whose boxes, grown by the largest
+    radius sum, overlap in some window (a k-d tree over box centres finds them in large
+    fleets)."""
+    keys, los, his, who = [], [], [], []
+    for r, (t, p) in tracks.items():
+        window = np.floor(t / WINDOW_S).astype(np.int64)
+        cross = np.flatnonzero(np.diff(window) != 0)  # segments that end in the next window
+        w = np.r_[window, window[cross]]
+        q = np.vstack([p, p[cross + 1]])
+        order = np.argsort(w, kind="stable")
+        w, q = w[order], q[order]
+        starts = np.flatnonzero(np.r_[True, np.diff(w) != 0])
+        keys.append(w[starts])
+        los.append(np.minimum.reduceat(q, starts, axis=0))
+        his.append(np.maximum.reduceat(q, starts, axis=0))
+        who.append(np.full(len(starts), r))
+    if not keys:
+        return []
+    key, lo, hi, rid = (np.concatenate(x) for x in (keys, los, his, who))
+    reach = 2.0 * float(radii.max())
+    pairs: set[tuple[int, int]] = set()
+    order = np.argsort(key, kind="stable")
+    key, lo, hi, rid = key[order], lo[order], hi[order], rid[order]
+    bounds = np.flatnonzero(np.r_[True, np.diff(key) != 0, True])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        if b - a < 2:
+            continue
+        centre, half = (lo[a:b] + hi[a:b]) / 2, (hi[a:b] - lo[a:b]) / 2
+        # Boxes meet (grown by `reach`) only if their centres are this close on each axis.
+        limit = float(np.max(half)) * 2.0 + reach
+        near = cKDTree(centre).query_pairs(limit * np.sqrt(2.0), output_type="ndarray")
+        if len(near) == 0:
+            continue
+        x, y = near[:, 0], near[:, 1]
+        gap = np.abs(centre[x] - centre[y]) - half[x] - half[y]
+        meet = np.all(gap < reach, axis=1)
+        for u, v in zip(rid[a:b][x[meet]], rid[a:b][y[meet]], strict=True):
+            pairs.add((int(min(u, v)), int(max(u, v))))
+    return sorted(pairs)
 
 
 def _contacts(
