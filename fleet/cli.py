@@ -423,7 +423,13 @@ def _scenario(args: argparse.Namespace):
         duration=getattr(args, "duration", None),
         seed=getattr(args, "seed", None),
         latency=getattr(args, "latency", None),
+        controller_options=_options(args.settings, "controller.options."),
     )
+
+
+def _options(settings: list[tuple[str, Any]], prefix: str) -> dict[str, Any]:
+    """The ``--set`` values under `prefix`, as a plugin's options (by their names)."""
+    return {k.removeprefix(prefix): v for k, v in settings if k.startswith(prefix)}
 
 
 def _cmd_run(args: argparse.Namespace, console: Console, errors: Console) -> int:

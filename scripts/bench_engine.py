@@ -14,22 +14,55 @@ Two sensing settings, both measured in the same run: the default scenario's (it 
 the follower yields and brakes for them), and ``off`` (0: robots see no one, as before sensing
 existed). ``off/on`` is the ratio of their medians.
 
+The machine may be shared, so each run is also set against a floor: a minimal SimPy loop of
+the same number of double integrators (one process per robot, a step and a timeout per tick,
+no bus, no controller), timed just before the run. ``ratio`` is the run's robot-steps/s over
+the loop's (the median of the per-repeat ratios), which a busy machine slows alike; ``x rt``
+is the real-time factor (simulated seconds per wall second).
+
 Nothing here is asserted: the figures go in notes and the README.
 
+With ``--profile N`` each run goes under cProfile and its N top entries, by cumulative and by
+own time, are printed after it (docs/performance.md; the profiler's cost per Python call makes
+the figures above it slower).
+
     python scripts/bench_engine.py [--sizes 10 100 1000] [--steps 100000] [--repeats 3]
-                                   [--sensing default off]
+                                   [--sensing default off] [--loads busy idle] [--profile N]
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import pstats
 import statistics
 import time
 from dataclasses import replace
 
+import simpy
+
 from fleet.engine import World
 from fleet.floor import load_floor
 from fleet.scenario import REPO_ROOT, JobsConfig, ScriptedJob, load_scenario
+
+
+def minimal_loop(robots: int, steps: int, period: float) -> float:
+    """Robot-steps per wall second of a bare SimPy loop: `robots` discrete double integrators
+    (``p += dt v; v += dt u``, u a constant), one process each, for about `steps` steps."""
+    env = simpy.Environment()
+
+    def robot(i: int):
+        x, y, vx, vy, ax, ay = float(i), 0.0, 0.0, 0.0, 0.01, -0.01
+        while True:
+            x, y, vx, vy = x + period * vx, y + period * vy, vx + period * ax, vy + period * ay
+            yield env.timeout(period)
+
+    for i in range(robots):
+        env.process(robot(i))
+    ticks = max(1, steps // robots)
+    t0 = time.perf_counter()
+    env.run(until=ticks * period - period / 2)  # exactly `ticks` steps per robot
+    return robots * ticks / (time.perf_counter() - t0)
 
 
 def main() -> None:
@@ -41,6 +74,8 @@ def main() -> None:
         "--sensing", nargs="+", choices=["default", "off"], default=["default", "off"],
         help="the default scenario's sensing radius, none, or both (the default)",
     )  # fmt: skip
+    ap.add_argument("--loads", nargs="+", choices=["busy", "idle"], default=["busy", "idle"])
+    ap.add_argument("--profile", type=int, default=0, metavar="N", help="print N top entries")
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "default.toml")
@@ -49,10 +84,10 @@ def main() -> None:
     radius = {"default": base.sensing_radius_m, "off": 0.0}
     print(
         f"{'robots':>7} {'load':>5} {'sensing':>7} {'sim s':>7} {'steps':>9} {'setup s':>8} "
-        f"{'run s':>8} {'steps/s':>10} {'off/on':>7}"
+        f"{'run s':>8} {'steps/s':>10} {'x rt':>6} {'loop/s':>9} {'ratio':>7} {'off/on':>7}"
     )
     never = JobsConfig(mode="scripted", scripted=(ScriptedJob(1e12, floor.spec.stations[-1].name),))
-    for n, load in [(n, load) for n in args.sizes for load in ("busy", "idle")]:
+    for n, load in [(n, load) for n in args.sizes for load in args.loads]:
         duration = max(10.0, args.steps * base.robots[0].period_s / n)
         # Plain deliveries: the default scenario's parts and print caps would make this a
         # benchmark of the follower's cap policy instead of the engine.
@@ -62,17 +97,27 @@ def main() -> None:
         rate_of: dict[str, float] = {}
         for sensing in args.sensing:
             sensed = replace(sc, sensing_radius_m=radius[sensing])
-            setups, runs, rates = [], [], []
+            setups, runs, rates, loops, ratios = [], [], [], [], []
             for _ in range(args.repeats):
+                loops.append(minimal_loop(n, args.steps, base.robots[0].period_s))
                 t0 = time.perf_counter()
                 world = World(sensed, floor)
                 t1 = time.perf_counter()
+                profile = cProfile.Profile() if args.profile else None
+                if profile is not None:
+                    profile.enable()
                 result = world.run()
                 t2 = time.perf_counter()
+                if profile is not None:
+                    profile.disable()
+                    stats = pstats.Stats(profile)
+                    for key in ("cumulative", "tottime"):
+                        stats.sort_stats(key).print_stats(args.profile)
                 steps = result.summary["engine"]["robot_steps"]
                 setups.append(t1 - t0)
                 runs.append(t2 - t1)
                 rates.append(steps / (t2 - t1))
+                ratios.append(rates[-1] / loops[-1])
             rate_of[sensing] = statistics.median(rates)
             label = f"{radius[sensing]:g} m" if radius[sensing] > 0 else "off"
             ratio = (
@@ -81,7 +126,9 @@ def main() -> None:
             print(
                 f"{n:>7} {load:>5} {label:>7} {duration:>7.0f} {steps:>9} "
                 f"{statistics.median(setups):>8.2f} {statistics.median(runs):>8.2f} "
-                f"{rate_of[sensing]:>10.0f} {ratio}",
+                f"{rate_of[sensing]:>10.0f} "
+                f"{rate_of[sensing] * base.robots[0].period_s / n:>6.2f} "
+                f"{statistics.median(loops):>9.0f} {statistics.median(ratios):>7.4f} {ratio}",
                 flush=True,
             )
 

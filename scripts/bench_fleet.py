@@ -4,7 +4,9 @@ processes, and robot-steps per second of a large follower fleet.
 1. ``scenarios/fleet.toml`` on the shop floor with ``--robots`` (20) MPC robots for
    ``--minutes`` (30) simulated minutes, with ``--workers`` 0, 1 and 2: wall time, real-time
    factor (simulated seconds per wall second), the speed-up of 2 workers over 1, solver
-   medians, and whether the digests agree (they must: same seed, same run).
+   medians, and whether the digests agree (they must: same seed, same run). ``--lockstep
+   strict pipelined`` runs each worker count in each lockstep mode (``[bus] lockstep``; the
+   digests agree within a mode, not across modes).
 2. ``--baseline-robots`` (1000) follower robots with the greedy dispatcher,
    ``--baseline-seconds`` (60) simulated: robot-steps per wall second, in this process and with
    2 workers.
@@ -13,8 +15,10 @@ processes, and robot-steps per second of a large follower fleet.
    process once, every controller step and bid timed per robot and round; printed: how many robots
    solve per round, each robot's share of the work, and the speed-up of 2 workers over 1 that
    the lockstep allows (every round waits for its slowest worker) with the contiguous shares
-   `fleet run --workers 2` uses, and with the best split of every single round. ``--rate``
-   sets the job rate (a busy fleet spreads the work).
+   `fleet run --workers 2` uses, with interleaved shares (r01, r03, ... and r02, r04, ...), with
+   the best fixed split (each robot's total work known beforehand, heaviest first to the
+   lighter worker), with the best split of every single round, and with 3, 4 or 8 workers
+   sharing the 2 cores. ``--rate`` sets the job rate (a busy fleet spreads the work).
 
 4. With ``--sweep N [N ...]``: the MPC fleet at each size (issue 16), for ``--duration`` (120)
    simulated seconds with jobs at ``--per-robot-rate`` (120) per robot-hour. Per size: contacts
@@ -26,9 +30,10 @@ processes, and robot-steps per second of a large follower fleet.
 Nothing is asserted: the figures go in notes and the README.
 
     python scripts/bench_fleet.py [--minutes 30] [--robots 20] [--workers 0 1 2]
+        [--lockstep strict pipelined] [--rate 4800] [--skip-baseline]
     python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200]
     python scripts/bench_fleet.py --sweep 10 20 40 80 [--duration 120] [--per-robot-rate 120]
-        [--out runs/sweep]
+        [--out runs/sweep] [--options reuse_ticks=4]
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -44,7 +50,12 @@ import numpy as np
 
 from fleet.engine import World
 from fleet.engine.agents import split_robots
-from fleet.scenario import REPO_ROOT, load_scenario
+from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
+
+
+def with_lockstep(scenario, mode: str):
+    """`scenario` with ``[bus] lockstep = mode``."""
+    return replace(scenario, bus=replace(scenario.bus, lockstep=mode))
 
 
 def run(scenario, workers: int) -> tuple[dict, float]:
@@ -56,19 +67,20 @@ def run(scenario, workers: int) -> tuple[dict, float]:
 
 
 def balance(scenario) -> None:
-    """Time every controller step and bid of an in-process run per robot and round; print how
-    the work would spread over 2 workers."""
+    """Time every controller step and bid of an in-process run per robot and round (CPU time);
+    print how the work would spread over 2 workers."""
     world = World(scenario)
     assert world.host is not None
     costs: dict[tuple[str, int], float] = {}
 
     def timed(robot: str, method):
         # Controller steps and bids (a path search each) both run on the robot's worker.
+        # CPU time of this thread: other processes on a shared machine do not inflate it.
         def call(obs, *args):
-            t0 = time.perf_counter()
+            t0 = time.thread_time()
             out = method(obs, *args)
             key = (robot, obs.tick)
-            costs[key] = costs.get(key, 0.0) + time.perf_counter() - t0
+            costs[key] = costs.get(key, 0.0) + time.thread_time() - t0
             return out
 
         return call
@@ -76,7 +88,9 @@ def balance(scenario) -> None:
     for robot, controller in world.host.controllers.items():
         controller.compute = timed(robot, controller.compute)  # type: ignore[method-assign]
         controller.bid = timed(robot, controller.bid)  # type: ignore[method-assign]
+    cpu0 = time.thread_time()
     summary = world.run().summary
+    cpu = time.thread_time() - cpu0
     robots = sorted(world.host.controllers)
     ticks = sorted({tick for _, tick in costs})
     at = {tick: i for i, tick in enumerate(ticks)}
@@ -85,17 +99,30 @@ def balance(scenario) -> None:
     for (robot, tick), c in costs.items():
         work[at[tick], index[robot]] = c
     total = float(work.sum())
-    engine = summary["wall_time_s"] - total  # the engine's own serial share
+    engine = cpu - total  # the engine's own serial share (CPU time)
     solving = (work > 2e-3).sum(axis=1)  # robots that solved or bid (> 2 ms) in the round
-    shares = split_robots(robots, 2)
-    per_share = [work[:, [index[r] for r in share]].sum(axis=1) for share in shares]
-    contiguous = float(np.maximum(*per_share).sum())
+
+    def lockstep(shares: list[list[str]]) -> float:
+        """Controller time of the run on 2 workers: every round waits for the slower one."""
+        per_share = [work[:, [index[r] for r in share]].sum(axis=1) for share in shares]
+        return float(np.maximum(*per_share).sum())
+
+    contiguous = lockstep(split_robots(robots, 2))
+    interleaved = lockstep([robots[0::2], robots[1::2]])
+    fixed: list[list[str]] = [[], []]
+    loads = [0.0, 0.0]
+    for c, r in sorted(zip(work.sum(axis=0), robots, strict=True), reverse=True):
+        lighter = int(loads[1] < loads[0])
+        fixed[lighter].append(r)
+        loads[lighter] += c
+    best_fixed = lockstep(fixed)
     # No split can beat, in any round, half the round's work or its heaviest robot.
     best = float(np.maximum(work.sum(axis=1) / 2, work.max(axis=1)).sum())
     print(
         f"{len(robots)} robots, {summary['sim_time_s']:g} simulated s, "
         f"{summary['jobs']['completed']}/{summary['jobs']['released']} jobs delivered; "
-        f"wall {summary['wall_time_s']:.1f} s: controllers {total:.1f} s, engine {engine:.1f} s"
+        f"wall {summary['wall_time_s']:.1f} s; CPU: controllers {total:.1f} s, "
+        f"engine {engine:.1f} s"
     )
     print(
         f"robots solving per round: median {np.median(solving):g}, mean {solving.mean():.2f}; "
@@ -105,7 +132,23 @@ def balance(scenario) -> None:
     print("heaviest robots: " + ", ".join(f"{r} {c / total:.0%}" for c, r in heavy))
     print(f"speed-up of 2 workers over 1 the lockstep allows (engine share {engine:.1f} s):")
     print(f"  contiguous shares: {(engine + total) / (engine + contiguous):.2f}")
+    print(f"  interleaved shares: {(engine + total) / (engine + interleaved):.2f}")
+    print(f"  best fixed split (known beforehand): {(engine + total) / (engine + best_fixed):.2f}")
     print(f"  best split of every round: {(engine + total) / (engine + best):.2f}")
+    # More workers than cores: the system shares the 2 cores among them, so a round lasts as
+    # long as its busiest worker or half its work, whichever is longer (ideal time-sharing).
+    for w in (3, 4, 8):
+        per = [work[:, [index[r] for r in share]].sum(axis=1) for share in split_robots(robots, w)]
+        shared = float(np.maximum(np.max(per, axis=0), work.sum(axis=1) / 2).sum())
+        print(
+            f"  {w} workers sharing 2 cores, contiguous: {(engine + total) / (engine + shared):.2f}"
+        )
+    # Pipelined, the engine steps while the workers compute: at best each run takes the longer
+    # of the two (per round, which these totals can only bound).
+    print(
+        "  pipelined, contiguous shares, engine hidden: "
+        f"{max(engine, total) / max(engine, contiguous):.2f}"
+    )
 
 
 def closest_approach(world: World) -> tuple[float, str, str, float]:
@@ -178,10 +221,19 @@ def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, 
 
 
 def sweep(
-    base, sizes: list[int], duration: float, per_robot_rate: float, out: Path | None = None
+    base,
+    sizes: list[int],
+    duration: float,
+    per_robot_rate: float,
+    out: Path | None = None,
+    options: dict[str, Any] | None = None,
 ) -> None:
-    """The MPC fleet at each size: contacts, fallbacks, deadlocks and jobs (issue 16); with
-    `out`, each run's directory is written to ``out/robots<N>`` for `fleet replay`."""
+    """The MPC fleet at each size: contacts, fallbacks, deadlocks and jobs (issue 16), and its
+    pace (issue 17): real-time factor on the wall clock and on this process's CPU time (the
+    machine is shared: CPU time is what a run costs, the wall clock what it waited too), solve
+    median / p95 (ms, wall), solves and ticks that followed the previous plan instead
+    (``reuse_ticks``). `options` are MPC controller options; with `out`, each run's directory
+    is written to ``out/robots<N>`` for `fleet replay`."""
     print(
         f"MPC fleet sweep on {base.map.name}: {duration:g} simulated s, "
         f"{per_robot_rate:g} jobs per robot-hour, sensing {base.sensing_radius_m:g} m, "
@@ -195,6 +247,9 @@ def sweep(
     for n in sizes:
         sc = base.override(robots=n, controller="mpc", duration=duration)
         sc = replace(sc, jobs=replace(sc.jobs, rate_per_h=per_robot_rate * n))
+        if options:
+            merged = dict(sc.controller.options, **options)
+            sc = replace(sc, controller=PluginChoice(sc.controller.name, merged))
         world = World(sc)
         goals: dict[tuple[float, str], tuple[float, float]] = {}
         record = world.recorder.event
@@ -205,7 +260,9 @@ def sweep(
             record(t, kind, job, robot, station)
 
         world.recorder.event = event  # type: ignore[method-assign]
+        cpu0 = time.process_time()
         s = world.run().summary
+        cpu = time.process_time() - cpu0
         if out is not None:
             world.write(out / f"robots{n}")
         gap, a, b, t = closest_approach(world)
@@ -224,6 +281,14 @@ def sweep(
             f"gap to contact {gap:+.3f} m; solver {s['solver']['termination']}; hand-backs "
             f"{s['jobs']['handed_back']}, failed {s['jobs']['failed']}; median "
             f"{fate['median_s_to_progress']} s from a deadlock to progress",
+        )
+        assert world.host is not None
+        reuses = sum(getattr(c, "reuses", 0) for c in world.host.controllers.values())
+        sv = s["solver"]
+        print(
+            f"{'':>6} pace: RTF {duration / s['wall_time_s']:.3f} (wall), {duration / cpu:.3f} "
+            f"(CPU {cpu:.1f} s); solves {sv['steps']}, median {sv['median_ms'] or 0:.2f} ms, "
+            f"p95 {sv['p95_ms'] or 0:.2f} ms; plan reused {reuses}; digest {s['digest'][:12]}",
             flush=True,
         )
 
@@ -236,22 +301,37 @@ def main() -> None:
     ap.add_argument("--baseline-robots", type=int, default=1000)
     ap.add_argument("--baseline-seconds", type=float, default=60.0)
     ap.add_argument("--skip-mpc", action="store_true")
+    ap.add_argument("--skip-baseline", action="store_true", help="no follower fleet")
+    ap.add_argument(
+        "--lockstep",
+        nargs="+",
+        default=["strict"],
+        choices=["strict", "pipelined"],
+        help="MPC fleet: the [bus] lockstep modes to run",
+    )
     ap.add_argument("--balance", action="store_true", help="only the work-balance analysis")
     ap.add_argument("--rate", type=float, help="jobs per hour (default: the scenario's)")
     ap.add_argument("--sweep", type=int, nargs="+", metavar="N", help="MPC fleet sizes to sweep")
     ap.add_argument("--duration", type=float, default=120.0, help="simulated s per sweep run")
     ap.add_argument("--per-robot-rate", type=float, default=120.0, help="sweep: jobs/robot-hour")
     ap.add_argument("--out", type=Path, help="sweep: write each run's directory under this")
+    ap.add_argument(
+        "--options", nargs="*", default=[], metavar="K=V", help="sweep: MPC options (TOML values)"
+    )
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
     if args.rate is not None:
         base = replace(base, jobs=replace(base.jobs, rate_per_h=args.rate))
     if args.sweep:
-        sweep(base, args.sweep, args.duration, args.per_robot_rate, args.out)
+        options = {
+            k: tomllib.loads(f"v = {v}")["v"] for k, v in (o.split("=", 1) for o in args.options)
+        }
+        sweep(base, args.sweep, args.duration, args.per_robot_rate, args.out, options)
         return
     if args.balance:
-        balance(base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0))
+        sc = base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0)
+        balance(with_lockstep(sc, args.lockstep[0]))
         return
     if not args.skip_mpc:
         sc = base.override(robots=args.robots, controller="mpc", duration=args.minutes * 60.0)
@@ -261,31 +341,37 @@ def main() -> None:
             f"sensing {sc.sensing_radius_m:g} m"
         )
         print(
-            f"{'workers':>7} {'setup s':>8} {'run s':>8} {'RTF':>6} {'solve med ms':>12} "
-            f"{'jobs done':>9} {'collisions':>10} digest"
+            f"{'lockstep':>9} {'workers':>7} {'setup s':>8} {'run s':>8} {'RTF':>6} "
+            f"{'solve med ms':>12} {'jobs done':>9} {'collisions':>10} digest"
         )
-        walls: dict[int, float] = {}
-        digests = set()
-        for w in args.workers:
-            s, setup = run(sc, w)
-            wall = s["wall_time_s"]
-            walls[w] = wall
-            digests.add(s["digest"])
-            print(
-                f"{w:>7} {setup:>8.1f} {wall:>8.1f} {s['sim_time_s'] / wall:>6.2f} "
-                f"{s['solver']['median_ms'] or 0:>12.2f} {s['jobs']['completed']:>9} "
-                f"{s['violations']['collision']:>10} {s['digest'][:12]}"
-            )
-            # What could tie a run to the wall clock: solves cut by their time limit (not
-            # "optimal"), rounds that timed out, agents lost.
-            print(
-                f"{'':>7} solver {s['solver']['termination']}, fallbacks "
-                f"{s['solver']['fallbacks']}, bus timeouts {s['engine'].get('bus_timeouts', 0)}, "
-                f"faults {s['faults']}"
-            )
-        if 1 in walls and 2 in walls:
-            print(f"speed-up 2 workers vs 1: {walls[1] / walls[2]:.2f}")
-        print(f"digests agree: {len(digests) == 1}")
+        for mode in args.lockstep:
+            walls: dict[int, float] = {}
+            digests = set()
+            for w in args.workers:
+                s, setup = run(with_lockstep(sc, mode), w)
+                wall = s["wall_time_s"]
+                walls[w] = wall
+                digests.add(s["digest"])
+                print(
+                    f"{mode:>9} {w:>7} {setup:>8.1f} {wall:>8.1f} {s['sim_time_s'] / wall:>6.2f} "
+                    f"{s['solver']['median_ms'] or 0:>12.2f} {s['jobs']['completed']:>9} "
+                    f"{s['violations']['collision']:>10} {s['digest'][:12]}"
+                )
+                # What could tie a run to the wall clock: solves cut by their time limit (not
+                # "optimal"), rounds that timed out, agents lost.
+                print(
+                    f"{'':>17} solver {s['solver']['termination']}, fallbacks "
+                    f"{s['solver']['fallbacks']}, bus timeouts "
+                    f"{s['engine'].get('bus_timeouts', 0)}, faults {s['faults']}",
+                    flush=True,
+                )
+            if 1 in walls and 2 in walls:
+                print(f"{mode}: speed-up 2 workers vs 1: {walls[1] / walls[2]:.2f}")
+            if 0 in walls and 2 in walls:
+                print(f"{mode}: speed-up 2 workers vs 0: {walls[0] / walls[2]:.2f}")
+            print(f"{mode}: digests agree: {len(digests) == 1}")
+    if args.skip_baseline:
+        return
 
     n = args.baseline_robots
     # The baseline: follower and greedy dispatcher (auction bids cost a path search per robot

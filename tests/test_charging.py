@@ -4,6 +4,7 @@ and go back to work, a robot that runs flat, the scenario's checks and the plugi
 from __future__ import annotations
 
 import csv
+import json
 import math
 import re
 import sys
@@ -20,6 +21,7 @@ from fleet.errors import ScenarioError
 from fleet.plugins import CHARGING_GROUP, BatteryStatus, ChargingPolicy, load_charging_policy
 from fleet.plugins.testing import ConformanceError, check_charging_policy
 from fleet.scenario import REPO_ROOT, load_scenario
+from fleet.study.sweep import kpi_values
 from fleet_plugins.charging import OpportunityCharging, ThresholdCharging
 
 SHOP = (REPO_ROOT / "maps" / "shop_floor.toml").as_posix()
@@ -131,6 +133,10 @@ def test_a_low_robot_charges_first_then_takes_the_job_and_delivers_it(tmp_path: 
     shares = summary["states"]["robots"]["r01"]
     assert shares["charging"]["seconds"] == pytest.approx(end - start)
     assert summary["jobs"]["completed"] == 1 and summary["battery"]["stranded"] == 0
+    # A study's results.csv carries the battery KPIs.
+    kpis = kpi_values(json.loads(json.dumps(summary)))
+    assert kpis["charging_share"] == pytest.approx((end - start) / summary["sim_time_s"], abs=1e-6)
+    assert kpis["min_charge_share"] < 0.4 and kpis["stranded"] == 0 and kpis["handbacks"] == 0
     world.write(tmp_path / "out")
     rows = list(csv.DictReader((tmp_path / "out" / "battery.csv").open()))
     assert {r["state"] for r in rows} >= {"to_charger", "charging", "working"}

@@ -309,3 +309,16 @@ def test_key_files_in_the_repository_are_git_ignored(path):
         pytest.skip("not a git work tree")
     proc = subprocess.run(["git", "check-ignore", "-q", path], cwd=REPO_ROOT)
     assert proc.returncode == 0, f"{path} is not ignored by .gitignore"
+
+
+def test_controller_options_set_with_another_controller_reach_it(tmp_path, capsys):
+    """``--controller X --set controller.options.*`` configures X (they were once dropped, and
+    fixed_speed, which needs its speed, was refused without it)."""
+    argv = ["run", str(THROUGHPUT), "--controller", "fixed_speed", "--quiet", "--no-figures"]
+    argv += ["--set", "scenario.duration_s=30", "--set", "controller.options.speed=-1"]
+    assert main([*argv, "--out", str(tmp_path / "bad")]) == EXIT_FAILED
+    assert "option speed = -1: must be a positive number" in capsys.readouterr().err
+    argv[-1] = "controller.options.speed=0.2"
+    assert main([*argv, "--out", str(tmp_path / "run")]) == EXIT_OK
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["controller"] == "fixed_speed"

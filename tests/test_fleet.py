@@ -163,11 +163,14 @@ def test_mpc_robots_that_keep_clear_of_each_other_give_the_same_digest_with_0_an
     assert summaries[0]["jobs"]["completed"] >= 1 and summaries[0]["solver"]["steps"] > 100
 
 
-def test_a_killed_worker_is_a_fault_its_jobs_move_on_and_a_restarted_agent_rejoins():
+@pytest.mark.parametrize("lockstep", ["strict", "pipelined"])
+def test_a_killed_worker_is_a_fault_its_jobs_move_on_and_a_restarted_agent_rejoins(lockstep):
+    # Pipelined, the orphans brake from the tick after their last command, and a rejoined
+    # robot's first command answers its state braked to rest.
     sc = replace(
         fleet_scenario(robots=4, duration=150.0),
         jobs=scripted("cnc_1_in", "qc_lab_in", "furnace_in", "paint_booth_in"),
-        bus=BusConfig(timeout_s=5.0, lost_after_s=1.0),
+        bus=BusConfig(timeout_s=5.0, lost_after_s=1.0, lockstep=lockstep),
     )
     world = World(sc, workers=2)
     victim = world.workers.processes[0]

@@ -608,6 +608,28 @@ def test_the_throughput_figure_cuts_error_bars_at_zero(tmp_path):
     assert min(lows) == 0.0  # the t interval would reach below zero
 
 
+def test_every_panels_error_bars_fit_under_the_shared_top(tmp_path):
+    """The second panel's interval reaches higher than anything in the first."""
+    rows = [
+        ok_row(f"c{i}", seed, good, controller="A", rate_per_h=rate, robots=robots)
+        for i, (robots, rate, seed, good) in enumerate(
+            [("2", "3", 1, 3.0), ("2", "3", 2, 3.0), ("2", "6", 1, 3.0), ("2", "6", 2, 3.2)]
+            + [("4", "3", 1, 3.0), ("4", "3", 2, 3.1), ("4", "6", 1, 5.0), ("4", "6", 2, 6.0)]
+        )
+    ]
+    axes = {"controller": ["A"], "rate_per_h": ["3", "6"], "robots": ["2", "4"]}
+    summary = summarise(load_study(write_study(tmp_path / "s", axes, [1, 2], rows)))
+    highs = [
+        seg[1][1]
+        for ax in throughput_figure(summary).axes
+        for line in ax.collections
+        for seg in line.get_segments()
+    ]
+    assert max(highs) > 6.0  # two seeds: a wide t interval, above every mean
+    for ax in throughput_figure(summary).axes:
+        assert ax.get_ylim()[0] == 0.0 and ax.get_ylim()[1] >= max(highs)
+
+
 def test_released_jobs_are_compared_seed_by_seed_for_common_random_numbers(tmp_path):
     a, b = {1: 4.0, 2: 6.0}, {1: 3.0, 2: 5.5}
     path = pair_study(tmp_path / "s", a, b)

@@ -118,10 +118,12 @@ def test_a_tiny_sweep_runs_every_cell_on_processes(tiny):
     ]
     for row in rows:
         assert row["status"] == "ok" and row["error"] == ""
-        # Empty only where the summary says null: no job delivered yet, no solver in use.
-        maybe = {"mean_lead_time_s", "solver_median_ms"}
+        # Empty only where the summary says null: no job delivered yet, no solver in use, no
+        # [battery] table.
+        battery = {"charging_share", "min_charge_share", "stranded"}
+        maybe = {"mean_lead_time_s", "solver_median_ms", *battery}
         assert all(row[name] != "" for name, _ in KPI_COLUMNS if name not in maybe)
-        assert row["solver_median_ms"] == ""
+        assert row["solver_median_ms"] == "" and row["charging_share"] == ""
         assert len(row["digest"]) == 64
         summary = json.loads((result.out_dir / row["run_dir"] / "summary.json").read_text())
         assert summary["robots"] == int(row["robots"]) and summary["seed"] == int(row["seed"])

@@ -5,6 +5,8 @@ to `Exchange.round`, which sends each agent one OBSERVE holding its robots' obse
 collects one ACT per agent. Local hosts (same process, `Exchange.add_local`) are pumped
 synchronously inside `round`, so a single-process run needs no threads and is deterministic;
 remote hosts (other threads, processes or machines over ipc/tcp) answer on their own.
+`round` is `send` then `collect`: a pipelined engine calls them apart and steps the world while
+the agents compute (`[bus] lockstep = "pipelined"`, `fleet.engine.pipeline`).
 
 Local hosts are never timed out: `timeout_s` starts once they have answered, so their compute
 time does not eat into the remote hosts' allowance. From then on the deadline is fixed and
@@ -183,6 +185,7 @@ class Exchange:
         self.bids: list[Bid] = []
         self.handbacks: list[Handback] = []
         self.closed = False
+        self._open = False  # a round was sent and not yet collected
         self._round = self._open_round(-1, frozenset())  # none yet: HELLOs are stamped tick 0
 
     # -- set-up -------------------------------------------------------------------------------
@@ -307,8 +310,29 @@ class Exchange:
         ValueError
             If `tick` does not increase, or a robot is observed (a job announced) twice.
         """
+        self.send(tick, t, observations, announcements)
+        return self.collect()
+
+    def send(
+        self,
+        tick: int,
+        t: float,
+        observations: Sequence[Observation],
+        announcements: Sequence[Announcement] = (),
+    ) -> None:
+        """The first half of `round`: send the OBSERVEs and return at once, the round left
+        open; `collect` ends it. The remote agents compute meanwhile (a pipelined lockstep);
+        local hosts compute when `collect` pumps them.
+
+        Raises
+        ------
+        MessageError, ValueError
+            As `round`; ValueError also if the previous round was sent and not collected.
+        """
         if self.closed:
             raise MessageError(f"exchange at {self.address} is closed")
+        if self._open:
+            raise ValueError(f"round tick {self._round.tick} was sent and not collected")
         if type(tick) is not int or tick <= self._round.tick:
             raise ValueError(f"round tick = {tick!r}: must be an integer > {self._round.tick}")
         announced, offers = announcement_offers(tick, announcements)
@@ -318,6 +342,31 @@ class Exchange:
         # unreachable, a HELLO (rejoin) has its robots served in this very round.
         self._router.take_in()
         this.ask(t, observations, offers)
+        self._open = True
+
+    @property
+    def outstanding(self) -> bool:
+        """Whether a round was sent (`send`) and not yet collected."""
+        return self._open
+
+    def collect(self) -> dict[str, Command]:
+        """The second half of `round`: wait for the answers to the round `send` opened and
+        return its commands (see `round`); bids and handbacks are then in `bids` and
+        `handbacks`. The remote agents' `timeout_s` counts from this call.
+
+        Raises
+        ------
+        MessageError
+            If the exchange is closed.
+        ValueError
+            If no round is open.
+        """
+        if self.closed:
+            raise MessageError(f"exchange at {self.address} is closed")
+        if not self._open:
+            raise ValueError("no round to collect: send one first")
+        this = self._round
+        self._open = False
         this.wait(self.timeout_s, self.lost_after_s)
         self.stats["commands_missing"] += this.missing
         self.bids = this.answers.bids()

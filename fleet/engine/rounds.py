@@ -24,7 +24,7 @@ from fleet.engine.lifecycle import JobLifecycle
 from fleet.engine.motion import RobotState
 from fleet.engine.recorder import Recorder
 from fleet.engine.sensing import PLAN_SPACING_S, Sensing, thin_plan
-from fleet.plugins import Announcement, Command, ControlStatus
+from fleet.plugins import Announcement, Command, ControlStatus, Observation
 from fleet.plugins.robot import brake_input
 from fleet.scenario import Latency
 
@@ -85,49 +85,58 @@ class BusRounds:
         self.count += 1
         announcements = self.dispatch.announcements(t)
         commands = self.exchange.round(self.count, t, observations, announcements)
-        latency = self.latency
         for (robot, ev), obs in zip(pending, observations, strict=True):
-            cmd = commands.get(robot.id)
-            if robot.broken:
-                cmd = None  # broken down: braked to rest whatever its controller says
-            elif cmd is None:
-                self.recorder.stats["commands_missing"] += 1
-            from_controller = cmd is not None
-            if cmd is None:
-                ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
-                cmd = Command(ax, ay, ControlStatus.ERROR)
-                robot.plan = robot.thinned_plan = ()  # braking, not following its plan
-            elif cmd.status is not ControlStatus.OK:
-                self.recorder.stats[f"commands_{cmd.status.value}"] += 1
-            if obs.goal is not None:
-                robot.goal_commands += 1
-                robot.goal_errors += cmd.status is ControlStatus.ERROR
-            if latency is not None:
-                delay = 0.0  # commands the engine makes itself (brakes) apply at once
-                if from_controller:
-                    if latency != "measured":
-                        delay = latency
-                        robot.latencies.append(delay)
-                    elif cmd.solve is not None:
-                        delay = max(cmd.solve.step_s, 0.0)
-                        robot.latencies.append(delay)
-                    else:
-                        robot.instant += 1  # reports no solve: counts as instant
-                robot.delay(t, delay, cmd.ax, cmd.ay)
-            if cmd.plan:
-                robot.plan = cmd.plan  # an empty plan means the previous one still holds
-                robot.thinned_plan = thin_plan(cmd.plan, PLAN_SPACING_S)
-                self.recorder.plan(robot.id, t, cmd.plan)
-            if cmd.solve is not None:
-                self.recorder.solves.append(cmd.solve)
-            a = robot.spec.a_max
-            if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
-                self.recorder.stats["commands_clipped"] += 1
-            if robot.job is not None and robot.job.started_s is None and obs.goal is not None:
-                robot.job.started_s = t
-                self.recorder.event(t, "started", robot.job.job.id, robot.id, robot.job.job.station)
-            ev.succeed(cmd)
+            ev.succeed(self.apply(robot, obs, commands.get(robot.id), t))
         self._after_round(t, announcements)
+
+    def apply(
+        self, robot: RobotState, obs: Observation | None, cmd: Command | None, t: float
+    ) -> Command:
+        """The command `robot` steps with from `t`: its controller's answer `cmd` to `obs`, or a
+        brake (no answer, or broken down), queued with its compute latency; its plan, solve
+        report and counters kept. `obs` None: nothing was asked (a pipelined round's first
+        tick), so a missing answer is no fault."""
+        if robot.broken:
+            cmd = None  # broken down: braked to rest whatever its controller says
+        elif cmd is None and obs is not None:
+            self.recorder.stats["commands_missing"] += 1
+        from_controller = cmd is not None
+        if cmd is None:
+            ax, ay = brake_input(robot.vx, robot.vy, robot.spec.period, robot.spec.a_max)
+            cmd = Command(ax, ay, ControlStatus.ERROR)
+            robot.plan = robot.thinned_plan = ()  # braking, not following its plan
+        elif cmd.status is not ControlStatus.OK:
+            self.recorder.stats[f"commands_{cmd.status.value}"] += 1
+        if obs is not None and obs.goal is not None:
+            robot.goal_commands += 1
+            robot.goal_errors += cmd.status is ControlStatus.ERROR
+        latency = self.latency
+        if latency is not None:
+            delay = 0.0  # commands the engine makes itself (brakes) apply at once
+            if from_controller:
+                if latency != "measured":
+                    delay = latency
+                    robot.latencies.append(delay)
+                elif cmd.solve is not None:
+                    delay = max(cmd.solve.step_s, 0.0)
+                    robot.latencies.append(delay)
+                else:
+                    robot.instant += 1  # reports no solve: counts as instant
+            robot.delay(t, delay, cmd.ax, cmd.ay)
+        if cmd.plan:
+            robot.plan = cmd.plan  # an empty plan means the previous one still holds
+            robot.thinned_plan = thin_plan(cmd.plan, PLAN_SPACING_S)
+            self.recorder.plan(robot.id, t, cmd.plan)
+        if cmd.solve is not None:
+            self.recorder.solves.append(cmd.solve)
+        a = robot.spec.a_max
+        if abs(cmd.ax) > a + 1e-12 or abs(cmd.ay) > a + 1e-12:
+            self.recorder.stats["commands_clipped"] += 1
+        job = robot.job
+        if job is not None and job.started_s is None and obs is not None and obs.goal is not None:
+            job.started_s = t
+            self.recorder.event(t, "started", job.job.id, robot.id, job.job.station)
+        return cmd
 
     def _after_round(self, t: float, announcements: list[Announcement]) -> None:
         """Bids, hand-backs and agents coming and going, as the round brought them."""

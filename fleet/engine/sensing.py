@@ -13,8 +13,10 @@ from __future__ import annotations
 import bisect
 import logging
 import math
-from collections import defaultdict
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
 
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning
@@ -22,7 +24,7 @@ from fleet.engine.recorder import Recorder
 from fleet.plugins import CAP_LOOKAHEAD_S, Neighbour, Observation
 from fleet.scenario import Scenario
 
-__all__ = ["Sensing", "thin_plan", "PLAN_SPACING_S"]
+__all__ = ["Sensing", "nearest_within", "thin_plan", "PLAN_SPACING_S"]
 
 log = logging.getLogger("fleet.engine")
 
@@ -46,6 +48,14 @@ PLAN_STALE_S = 1.0
 #: `MAX_NEIGHBOURS` observations, and between samples a robot at most 0.5 m/s^2 strays
 #: a * dt^2 / 8 = 0.016 m from the chord.
 PLAN_SPACING_S = 0.5
+#: Fleets up to this size compare every pair in `nearest_within`; larger ones use a k-d tree.
+_TREE_BELOW = 24
+#: Relative distance a hair beyond which `nearest_within` keeps the tree's candidates: far
+#: more than the tree's rounding (a few 1e-16), far less than any distance that matters.
+_SLACK = 1e-9
+#: Points `nearest_within` asks the tree for beyond the k nearest, so that a tie with the k-th
+#: rarely needs a second query.
+_SPARE = 4
 
 
 class Sensing:
@@ -230,34 +240,89 @@ class Sensing:
         self, robots: list[RobotState], radius: float, t: float, priority: dict[str, int]
     ) -> dict[str, tuple]:
         """Each of `robots`' nearest robots within `radius` (at most `MAX_NEIGHBOURS`), with
-        their plans from `t` on."""
-        cells: dict[tuple[int, int], list[RobotState]] = defaultdict(list)
-        for r in self.robots.values():
-            cells[(int(r.x // radius), int(r.y // radius))].append(r)
+        their plans from `t` on: nearest first, equal distances by id (`nearest_within`)."""
+        everyone = list(self.robots.values())
+        at = {o.id: i for i, o in enumerate(everyone)}
+        found = nearest_within(
+            [o.x for o in everyone],
+            [o.y for o in everyone],
+            [o.id for o in everyone],
+            [at[r.id] for r in robots],
+            radius,
+            MAX_NEIGHBOURS,
+        )
         out = {}
-        plans: dict[str, tuple] = {}
-        r2 = radius * radius
-        for r in robots:
-            cx, cy = int(r.x // radius), int(r.y // radius)
-            found = []
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    for o in cells.get((cx + dx, cy + dy), ()):
-                        d2 = (o.x - r.x) ** 2 + (o.y - r.y) ** 2
-                        if o is not r and d2 <= r2:
-                            found.append((d2, o.id, o))
-            found.sort()
+        # A robot looks the same to all who see it this instant: one (frozen) Neighbour each.
+        seen: dict[int, Neighbour] = {}
+        for r, near_idx in zip(robots, found, strict=True):
             near = []
-            for _, _, o in found[:MAX_NEIGHBOURS]:
-                if o.id not in plans:
-                    plans[o.id] = self._future_plan(o, t)
-                near.append(
-                    Neighbour(
-                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plans[o.id]
+            for j in near_idx:
+                nb = seen.get(j)
+                if nb is None:
+                    o = everyone[j]
+                    plan = self._future_plan(o, t)
+                    nb = seen[j] = Neighbour(
+                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plan
                     )
-                )
+                near.append(nb)
             out[r.id] = tuple(near)
         return out
+
+
+def nearest_within(
+    xs: Sequence[float],
+    ys: Sequence[float],
+    ids: Sequence[str],
+    queries: Sequence[int],
+    radius: float,
+    k: int,
+) -> list[list[int]]:
+    """For each point index in `queries`, the indices of the at most `k` other points within
+    `radius` of it, nearest first and equal distances by id.
+
+    The answer is exactly that of sorting every other point by ``((x - x0) ** 2 + (y - y0) ** 2,
+    id)`` in Python floats and keeping those within ``radius ** 2``: a k-d tree only picks the
+    candidates. Its distances may differ from those by a rounding error, so it keeps every
+    point up to a hair beyond its own k-th nearest (ties included, however many), and the
+    exact squared distances rank those few.
+    """
+    n = len(xs)
+    if not queries:
+        return []
+    r2 = radius * radius
+    reach = radius * (1.0 + _SLACK)
+    if n <= _TREE_BELOW:
+        near_of = [range(n)] * len(queries)
+    else:
+        tree = cKDTree(np.column_stack([xs, ys]))
+        q = np.array([(xs[i], ys[i]) for i in queries], dtype=float)
+        m = min(n, k + 1 + _SPARE)  # the point itself comes back too
+        dist, idx = tree.query(q, k=m, distance_upper_bound=reach)
+        # Cut a hair beyond the (k+1)-th distance (the point itself is one of the first k+1).
+        kth = dist[:, k] if m > k else np.full(len(queries), np.inf)
+        cut = np.minimum(kth * (1.0 + _SLACK), reach)
+        keep = dist <= cut[:, None]
+        # Ties reach past the m found where the last one is kept: ask for all within the cut.
+        full = keep[:, -1].tolist()
+        near_of = []
+        for row, (i, found_row, kept) in enumerate(
+            zip(queries, idx.tolist(), keep.tolist(), strict=True)
+        ):
+            if full[row]:
+                near_of.append(tree.query_ball_point((xs[i], ys[i]), float(cut[row])))
+            else:
+                near_of.append([j for j, ok in zip(found_row, kept, strict=True) if ok])
+    out = []
+    for i, near in zip(queries, near_of, strict=True):
+        x0, y0 = xs[i], ys[i]
+        found = []
+        for j in near:
+            d2 = (xs[j] - x0) ** 2 + (ys[j] - y0) ** 2
+            if j != i and d2 <= r2:
+                found.append((d2, ids[j], j))
+        found.sort()
+        out.append([j for _, _, j in found[:k]])
+    return out
 
 
 def thin_plan(

@@ -122,6 +122,8 @@ def summarise(
         "seed": scenario.seed,
         "controller": scenario.controller.name,
         "dispatcher": scenario.dispatcher.name,
+        # "strict" or "pipelined" ([bus] lockstep): pipelined commands take effect a tick later.
+        "lockstep": scenario.bus.lockstep,
         "robots": len(robots),
         "sim_time_s": now,
         # False when the run was stopped before scenario.duration_s (interrupted).

@@ -29,6 +29,7 @@ from fleet.bus import AgentHost, Exchange
 from fleet.engine.activity import Activity
 from fleet.engine.agents import WorkerPool, build_controllers, load_run_floor, scenario_fingerprint
 from fleet.engine.breakdowns import Breakdowns
+from fleet.engine.collector import fewer_collections
 from fleet.engine.dispatch import Dispatch
 from fleet.engine.energy import Energy
 from fleet.engine.jobs import JobRecord, JobSource
@@ -36,6 +37,7 @@ from fleet.engine.kpis import STATES_CSV, WIP_CSV, wip_rows
 from fleet.engine.lifecycle import JobLifecycle, analyse_parts, quality_model
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near, build_robots
+from fleet.engine.pipeline import PipelinedRounds
 from fleet.engine.placement import Placement
 from fleet.engine.recorder import Recorder, write_rows
 from fleet.engine.rounds import BusRounds
@@ -53,7 +55,7 @@ from fleet.errors import FleetError, MessageError, PluginError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec, SolveReport, load_charging_policy, load_dispatcher
-from fleet.scenario import Scenario, check_fleet, check_warmup, parse_latency
+from fleet.scenario import Scenario, check_fleet, check_lockstep, check_warmup, parse_latency
 
 __all__ = ["World", "RunResult"]
 
@@ -108,6 +110,7 @@ class World:
                 n,
             )
         check_warmup(scenario)  # --duration or code may have made the run shorter than it
+        check_lockstep(scenario)  # code may have set a latency or the lockstep
         self.rng = np.random.default_rng(scenario.seed)
         self.env = simpy.Environment()
         # One planner per distinct (v_max, a_max): references depend on both.
@@ -174,7 +177,8 @@ class World:
             self.floor, self.robots, self.recorder, self.planner_for, scenario.deadlock_after_s
         )
         self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning, make_way)
-        self.rounds = BusRounds(
+        rounds = PipelinedRounds if scenario.bus.lockstep == "pipelined" else BusRounds
+        self.rounds = rounds(
             self.env,
             self.exchange,
             scenario.latency,
@@ -340,7 +344,8 @@ class World:
         if progress is not None or stop is not None:
             self.env.process(self._watch(progress, stop, duration))
         try:
-            self.env.run(until=duration)
+            with fewer_collections():
+                self.env.run(until=duration)
         finally:
             self._close_bus()
         wall = time.perf_counter() - wall0

@@ -33,6 +33,12 @@ GAP_TOL = 1e-6
 ON_LINE_TOL = 1e-9
 
 _PARALLEL = 1e-12  # |cos| below which a segment runs parallel to a boundary line
+#: Leg times `SpeedLimits.segment_time` keeps (about 100 bytes each); when full it forgets
+#: them all and starts over.
+CACHE_ENTRIES = 1 << 16
+#: Batches `SpeedLimits.travel_times` keeps (about 1 kB each for the 18 legs of a waypoint's
+#: slide); likewise.
+BATCH_CACHE_ENTRIES = 1 << 13
 
 
 class SpeedLimits:
@@ -57,6 +63,10 @@ class SpeedLimits:
         self._bbox = np.array([r.polygon.bounds for r in regions], dtype=float)
         #: Per-axis limit (vx, vy) of each region, capped by the robot's own.
         self.per_region = np.minimum(np.array([r.v_max for r in regions], dtype=float), v_max)
+        # Path searches ask the same legs again and again (string pulling, sliding waypoints,
+        # trips from the same stations): answers kept by the exact bytes of the query.
+        self._segment_times: dict[bytes, float | None] = {}
+        self._batch_times: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     def clip(
         self, P: np.ndarray, Q: np.ndarray
@@ -169,6 +179,17 @@ class SpeedLimits:
 
     def segment_time(self, p: np.ndarray, q: np.ndarray) -> float | None:
         """Time (s) to drive ``p -> q`` with every stretch at its limit; None if not free."""
+        p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+        key = p.tobytes() + q.tobytes()
+        cache = self._segment_times
+        if key in cache:
+            return cache[key]
+        if len(cache) >= CACHE_ENTRIES:
+            cache.clear()
+        t = cache[key] = self._segment_time(p, q)
+        return t
+
+    def _segment_time(self, p: np.ndarray, q: np.ndarray) -> float | None:
         parts = self.stretches(p, q)
         if parts is None:
             return None
@@ -185,6 +206,18 @@ class SpeedLimits:
         Each region's overlap is driven at that region's limit; a stretch along a shared
         boundary counts once per region, so the time is exact or an overestimate.
         """
+        P, Q = np.asarray(P, dtype=float), np.asarray(Q, dtype=float)
+        # The whole batch is the key: which regions are clipped depends on all its segments.
+        key = P.shape[0].to_bytes(8, "little") + P.tobytes() + Q.tobytes()
+        cache = self._batch_times
+        hit = cache.get(key)
+        if hit is None:
+            if len(cache) >= BATCH_CACHE_ENTRIES:
+                cache.clear()
+            hit = cache[key] = self._travel_times(P, Q)
+        return hit[0].copy(), hit[1].copy()
+
+    def _travel_times(self, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         L, u, lo, hi, contains, sel = self.clip(P, Q)
         over = np.maximum(hi - lo, 0.0)
         over = np.where(over > OVERLAP_TOL, over, 0.0)

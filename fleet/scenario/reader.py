@@ -141,6 +141,10 @@ class BusConfig:
     lost_after_s: float = 3.0
     #: Longest message (bytes) the bus takes in or sends (`fleet.bus.schema.MAX_MESSAGE_BYTES`).
     max_message_bytes: int = 2 * 1024 * 1024
+    #: "strict": a round waits for the commands, which drive the step after the observation;
+    #: "pipelined": they answer the next tick's (predicted) observation and take effect then,
+    #: the engine stepping the world meanwhile (`fleet.engine.pipeline`).
+    lockstep: str = "strict"
 
 
 @dataclass(frozen=True)
@@ -295,11 +299,16 @@ class Scenario:
         duration: float | None = None,
         seed: int | None = None,
         latency: str | float | None = None,
+        controller_options: Mapping[str, Any] | None = None,
     ) -> Scenario:
         """A copy with command-line overrides applied and validated.
 
         `latency` takes what ``--latency`` takes: ``"none"``, ``"measured"`` or seconds >= 0
         (a number or its text); None leaves the scenario's setting.
+
+        A `controller` that is the scenario's own keeps its options; another one gets only
+        `controller_options` (those given with it, ``--set controller.options.*``): the file's
+        options were written for another plugin.
         """
         src = "command line"
         out = self
@@ -319,8 +328,8 @@ class Scenario:
                     "count in the file",
                 )
             out = replace(out, robots=(replace(out.robots[0], count=count),))
-        if controller is not None:
-            out = replace(out, controller=PluginChoice(controller))
+        if controller is not None and controller != out.controller.name:
+            out = replace(out, controller=PluginChoice(controller, dict(controller_options or {})))
         if dispatcher is not None:
             out = replace(out, dispatcher=PluginChoice(dispatcher))
         if duration is not None:
@@ -329,6 +338,7 @@ class Scenario:
             out = replace(out, seed=convert(seed, NonNegativeInt, src, "--seed"))
         if latency is not None:
             out = replace(out, latency=parse_latency(src, "--latency", latency, parse_text=True))
+            check_lockstep(out, "--latency")
         return out
 
 
@@ -495,7 +505,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         dispatcher=PluginChoice(file.dispatcher.name, file.dispatcher.options),
         jobs=jobs,
         bus_address=bus.address,
-        bus=BusConfig(bus.timeout_s, bus.lost_after_s, bus.max_message_bytes),
+        bus=BusConfig(bus.timeout_s, bus.lost_after_s, bus.max_message_bytes, bus.lockstep),
         deadlock_after_s=sc.deadlock_after_s or None,
         arrival_tolerance_m=sc.arrival_tolerance_m,
         sensing_radius_m=sc.sensing_radius_m,
@@ -515,6 +525,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         breakdowns=_breakdowns(src, file.breakdowns, len(groups), raw.get("breakdowns")),
     )
     check_warmup(scenario)
+    check_lockstep(scenario)
     return scenario
 
 
@@ -605,6 +616,25 @@ def check_warmup(scenario: Scenario) -> None:
             w,
             f"must be less than the run's duration_s ({scenario.duration_s:g} s): the KPIs are "
             "measured after the warm-up",
+        )
+
+
+def check_lockstep(scenario: Scenario, fld: str = "scenario.latency") -> None:
+    """A pipelined lockstep (``[bus] lockstep = "pipelined"``) has no compute latency: its
+    commands already take effect one tick late; `ScenarioError` naming the file (`fld`:
+    where the latency was set) otherwise."""
+    bus = scenario.bus
+    if bus.lockstep not in ("strict", "pipelined"):
+        raise ScenarioError(
+            scenario.source, "bus.lockstep", bus.lockstep, 'must be "strict" or "pipelined"'
+        )
+    if bus.lockstep == "pipelined" and scenario.latency is not None:
+        raise ScenarioError(
+            scenario.source,
+            fld,
+            scenario.latency,
+            'must be "none" with bus.lockstep = "pipelined" (its commands already take effect'
+            " one tick after the state they answer)",
         )
 
 

@@ -298,6 +298,15 @@ class BusTable(_Table, kw_only=True):
             " longer one is disconnected. Raise it for agents hosting thousands of robots.",
         ),
     ] = 2 * 1024 * 1024
+    lockstep: Annotated[
+        Literal["strict", "pipelined"],
+        Meta(
+            description='How a control round waits for the agents: "strict" (a command drives'
+            " the step right after the observation it answers; the engine waits for it) or"
+            ' "pipelined" (it answers the next tick\'s predicted observation and takes effect'
+            " then; the engine steps the world while the agents compute). Not with a latency."
+        ),
+    ] = "strict"
 
 
 class BreakdownGroupTable(_Table, kw_only=True):

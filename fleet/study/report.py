@@ -753,8 +753,10 @@ def throughput_figure(summary: Summary) -> Figure:
                 colours,
             )
         ax.set_ylabel("good parts/h")
-        ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
+    # Once all panels are drawn: the panels share y, and a limit set in the loop would freeze
+    # the top at the first panel's data and cut a later panel's error bars.
+    axes[0].set_ylim(bottom=0)
     handles: list[Any]
     if xv is not None:
         handles = [Line2D([], [], color=colours[s], marker="o", label=s) for s in summary.series]

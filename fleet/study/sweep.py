@@ -82,6 +82,7 @@ __all__ = [
     "SweepResult",
     "SweepInterrupted",
     "KPI_COLUMNS",
+    "kpi_values",
     "load_study",
     "parse_study",
     "run_study",
@@ -119,6 +120,13 @@ KPI_COLUMNS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("availability", ("breakdowns", "availability")),
     ("breakdowns", ("breakdowns", "breakdowns")),
     ("handed_back_breakdown", ("breakdowns", "jobs_handed_back")),
+    ("handbacks", ("handbacks", "count")),
+    ("scrapped_print_s", ("handbacks", "scrapped_print_s")),
+    ("deadlocks", ("deadlocks",)),
+    # Only with a [battery] table (empty otherwise).
+    ("charging_share", ("battery", "charging_share")),
+    ("min_charge_share", ("battery", "min_charge_share")),
+    ("stranded", ("battery", "stranded")),
     ("digest", ("digest",)),
 )
 
@@ -655,6 +663,17 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     return record
 
 
+def kpi_values(summary: dict[str, Any] | None) -> dict[str, Any]:
+    """A run's KPI columns (`KPI_COLUMNS`) from its summary.json; None where it has no value."""
+    kpis: dict[str, Any] = {}
+    for name, keys in KPI_COLUMNS:
+        value: Any = summary
+        for key in keys:
+            value = value.get(key) if isinstance(value, dict) else None
+        kpis[name] = value
+    return kpis
+
+
 def _record(
     spec: CellSpec,
     status: CellStatus,
@@ -662,12 +681,7 @@ def _record(
     wall_s: float,
     summary: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    kpis: dict[str, Any] = {}
-    for name, keys in KPI_COLUMNS:
-        value: Any = summary
-        for key in keys:
-            value = value.get(key) if isinstance(value, dict) else None
-        kpis[name] = value
+    kpis = kpi_values(summary)
     return {
         "cell": spec.cell,
         "index": spec.index,

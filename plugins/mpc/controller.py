@@ -30,7 +30,7 @@ from fleet.plugins import (
     SolverOutcome,
 )
 from fleet_plugins.mpc.fallback import brake, follow_previous
-from fleet_plugins.mpc.horizon import region_bounds, step_data
+from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
 from fleet_plugins.mpc.neighbours import (
     clear_of_boxes,
@@ -40,6 +40,7 @@ from fleet_plugins.mpc.neighbours import (
 )
 from fleet_plugins.mpc.options import check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
+from fleet_plugins.mpc.reuse import clear_of_all, shifted, within_caps
 from fleet_plugins.mpc.separation import Separation, build_separation, spans
 from fleet_plugins.mpc.trip import Trip
 
@@ -54,7 +55,7 @@ PLAN_MATCH = 1e-6
 
 
 class MPCController(Controller):
-    """Mixed-integer MPC over the floor's convex regions, solved by HiGHS through Pyomo.
+    """Mixed-integer MPC over the floor's convex regions, solved by HiGHS.
 
     The paper's formulation: double integrator, zone speed limits as a Big-M union over the
     regions (M tight per row), time-varying print caps per horizon step, input bounds, horizon
@@ -109,8 +110,9 @@ class MPCController(Controller):
     cost:
         ``"l1"`` (default) or ``"quadratic"`` (the MILP, then the QP with its regions fixed).
     interface:
-        ``"direct"`` (default): per-step bounds written into the persistent HiGHS object by
-        index; ``"pyomo"``: mutable Params through Pyomo's persistent update (slower, same model).
+        ``"direct"`` (default): each step's MILP bounded to what the step can reach, written
+        straight into HiGHS (`bounded`); ``"pyomo"``: the trip's Pyomo model, mutable Params
+        through Pyomo's persistent update (slower, the same optimal costs).
     avoid_robots:
         Keep clear of the other robots in the observation (their plans); False ignores them.
     separation_margin_m:
@@ -121,6 +123,11 @@ class MPCController(Controller):
     respect_priority:
         Yield to higher-priority robots and keep course for lower ones unless they are parked
         or close (see above); False keeps clear of every robot in reach.
+    reuse_ticks:
+        Follow the previous plan, one step on, for up to this many ticks without a solve while
+        the robot is on it, it keeps this tick's print caps and no other robot can come within
+        reach of it (`reuse`); any of those events, or the age, brings a solve. 0 (default):
+        solve every tick. Such a tick's command carries no `SolveReport`.
     """
 
     name = "mpc"
@@ -140,6 +147,7 @@ class MPCController(Controller):
         separation_margin_m: float = 0.1,
         max_neighbours: int = 3,
         respect_priority: bool = True,
+        reuse_ticks: int = 0,
     ) -> None:
         super().__init__()
         self.interface = check_options(
@@ -156,6 +164,7 @@ class MPCController(Controller):
             separation_margin_m=separation_margin_m,
             max_neighbours=max_neighbours,
             respect_priority=respect_priority,
+            reuse_ticks=reuse_ticks,
         )
         self.cost = cost
         self.horizon = horizon
@@ -167,6 +176,7 @@ class MPCController(Controller):
         self.separation_margin_m = float(separation_margin_m)
         self.max_neighbours = max_neighbours
         self.respect_priority = respect_priority
+        self.reuse_ticks = reuse_ticks
         self._clear()
 
     def __repr__(self) -> str:
@@ -176,7 +186,8 @@ class MPCController(Controller):
             f"warm_start={self.warm_start}, interface={self.interface.value!r}, "
             f"cost={self.cost!r}, avoid_robots={self.avoid_robots}, "
             f"separation_margin_m={self.separation_margin_m}, "
-            f"max_neighbours={self.max_neighbours}, respect_priority={self.respect_priority})"
+            f"max_neighbours={self.max_neighbours}, respect_priority={self.respect_priority}, "
+            f"reuse_ticks={self.reuse_ticks})"
         )
 
     def reset(self, context: ControllerContext) -> None:
@@ -194,6 +205,9 @@ class MPCController(Controller):
         self._last_t = math.nan
         self._progress = 0
         self._failed: tuple[Any, ...] | None = None
+        self._reused = 0  # ticks the latest solved plan has been followed without a solve
+        #: Ticks that followed the previous plan instead of solving (`reuse_ticks`).
+        self.reuses = 0
         #: Trips built so far (a new goal or a fallback starts one).
         self.trips = 0
         #: Binaries switched on (corridor size) in each solve so far, for benchmarks.
@@ -233,6 +247,9 @@ class MPCController(Controller):
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
             return brake(obs, spec, self.horizon, ControlStatus.FALLBACK)
         assert self._trip is not None and self._model is not None
+        if self._reusable(obs):
+            return self._reuse(obs)
+        self._reused = 0
         data, warm = self._step_data(obs)
         separation = self._separation(obs, data)
         solution = self._model.solve(data, warm, separation)
@@ -259,6 +276,40 @@ class MPCController(Controller):
             u = solution.u[0]
             return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
         return self._fallback(obs, report)
+
+    def _reusable(self, obs: Observation) -> bool:
+        """Whether the previous plan, one step on, may be followed instead of a solve."""
+        last = self._last
+        if self._reused >= self.reuse_ticks or last is None or self._last_model is not self._model:
+            return False
+        if not self._on_plan(obs):
+            return False
+        assert last.p is not None and last.v is not None
+        spec = self.context.spec
+        if not within_caps(obs, spec, np.vstack([last.v[1:], np.zeros((1, 2))])):
+            return False
+        if not obs.neighbours or not self.avoid_robots:
+            return True
+        p = np.vstack([last.p[1:], last.p[-1:]])
+        return clear_of_all(obs, spec, p, self.separation_margin_m)
+
+    def _reuse(self, obs: Observation) -> Command:
+        """Follow the previous plan one step on (no solve, no `SolveReport`)."""
+        assert self._last is not None and self._trip is not None
+        self._last, self._last_t = shifted(self._last), obs.t
+        # Keep the progress along the reference current, as a solve's step data does (its
+        # search looks only `PROGRESS_WINDOW` samples ahead of the last one).
+        here = np.array([[obs.x, obs.y]])
+        self._progress = int(self._trip.progress(here, self._progress, PROGRESS_WINDOW)[0])
+        self._reused += 1
+        self.reuses += 1
+        last = self._last
+        assert last.p is not None and last.u is not None
+        dt = self.context.spec.period
+        plan = tuple(
+            (obs.t + k * dt, float(last.p[k, 0]), float(last.p[k, 1])) for k in range(len(last.p))
+        )
+        return Command(float(last.u[0, 0]), float(last.u[0, 1]), ControlStatus.OK, plan)
 
     def _parked(self, obs: Observation, goal: tuple[float, float]) -> bool:
         """At rest (to `PARKED_SPEED`) within `PARKED_DISTANCE` of the goal, with no robot closer

@@ -1,7 +1,6 @@
-"""The trip's mixed-integer MPC as a Pyomo model, kept in a persistent HiGHS instance.
+"""The trip's mixed-integer MPC: the Pyomo formulation, and how each step reaches HiGHS.
 
-One model per trip (reference), built once and updated in place every control step. The
-formulation, for horizon steps k = 0..N with step dt:
+The formulation, for horizon steps k = 0..N with step dt:
 
 - double integrator ``p[k+1] = p[k] + dt v[k]``, ``v[k+1] = v[k] + dt u[k]``, ``|u| <= a_max``;
   p[0], v[0] fixed to the measured state (their bounds);
@@ -18,16 +17,20 @@ formulation, for horizon steps k = 0..N with step dt:
 Per step only bounds change: p, v (measured state, caps, reachable boxes), z (corridor: a 0
 upper bound switches a region off for a step) and the right-hand sides of the tracking rows
 (the reference). Rows keeping clear of other robots (`separation`) change in number every
-step; they are added for one solve only. Two ways to push the rest into HiGHS (`Interface`):
-through Pyomo's persistent interface (mutable Params, ``update_parameters``) or written straight
-into a copy of the model that interface built, by the column/row indices it assigned (no Pyomo
-expression re-evaluation: 1.2x HiGHS time instead of ~2x; see docs/mpc.md).
+step; they are added for one solve only. Two ways to a solve (`Interface`):
 
-Every direct solve runs in a new HiGHS object holding a copy of the trip's model (0.1 ms), so
-that its result depends on its inputs only. A reused object completes a MIP start against its
-lifetime clock: once a trip's solves have added up to ``time_limit_s``, HiGHS silently drops
-starts it has to complete, and when that happens depends on the wall clock (two runs of the
-same fleet diverged there; docs/mpc.md, "Reproducible solves").
+- "direct" (default): no Pyomo model; each step's MILP is written as arrays (`bounded`) with
+  only the binaries the corridor leaves open and the rows the step's reachable box can break,
+  M tight over that box: the same feasible set, a model whose size does not grow with the trip,
+  and no model to build per trip (Pyomo took 0.25-0.4 s per trip at 40 robots);
+- "pyomo": the trip's Pyomo model above, built once per trip in Pyomo's persistent interface
+  (mutable Params, ``update_parameters``): the reference path, and the check that both agree.
+
+Every direct solve runs in a new HiGHS object, so that its result depends on its inputs only. A
+reused object completes a MIP start against its lifetime clock: once a trip's solves have added
+up to ``time_limit_s``, HiGHS silently drops starts it has to complete, and when that happens
+depends on the wall clock (two runs of the same fleet diverged there; docs/mpc.md,
+"Reproducible solves").
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from pyomo.contrib.solver.solvers.highs import Highs as PersistentHighs
 
 from fleet.highs import SolverError, configure, new_highs, solve, solver_log
 from fleet.plugins import SolverOutcome
+from fleet_plugins.mpc.bounded import Layout, StepMILP, TripFaces, build_step
 from fleet_plugins.mpc.separation import SLACK_COST, Separation
 from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
 
@@ -54,7 +58,11 @@ log = logging.getLogger("fleet.mpc")
 #: HiGHS options for these small MILPs (measured in docs/mpc-study.md): the sub-MIP
 #: heuristics and restarts cost up to a second on a 300-row MILP and never pay off here;
 #: the tight feasibility tolerance keeps Big-M leakage (M * 1e-6) far below the checker's 1e-6 m.
+#: Light presolve (``presolve_mode`` 2): the bounded step MILPs (`bounded`) leave it little to
+#: do, and the full one cost a third of the hardest solves' time on case study 3 (p95 CPU 36 ->
+#: 22 ms, the same optimal costs; docs/performance.md).
 HIGHS_OPTIONS: dict[str, object] = {
+    "presolve_mode": 2,
     "mip_heuristic_run_rins": False,
     "mip_heuristic_run_rens": False,
     "mip_heuristic_run_root_reduced_cost": False,
@@ -68,9 +76,10 @@ class Interface(enum.Enum):
     """How per-step data reaches HiGHS."""
 
     DIRECT = "direct"
-    """Bounds written into the persistent interface's HiGHS object by index (fast)."""
+    """Each step's bounded MILP written straight into HiGHS as arrays (`bounded`; fast)."""
     PYOMO = "pyomo"
-    """Mutable Params and the persistent interface's own update (the reference path)."""
+    """The trip's Pyomo model: mutable Params and the persistent interface's own update (the
+    reference path)."""
 
 
 @dataclass
@@ -107,7 +116,8 @@ class Solution:
 
 
 class TripModel:
-    """The Pyomo model of one trip and its persistent HiGHS instance.
+    """One trip's MPC: per step, the bounded MILP (direct interface), or the trip's Pyomo
+    model and its persistent HiGHS instance (pyomo interface).
 
     Parameters
     ----------
@@ -140,6 +150,12 @@ class TripModel:
         self.N = horizon
         self.interface = interface
         self.time_limit_s = time_limit_s
+        self._dims = (dt, a_max, weights)
+        if interface is Interface.DIRECT:
+            # Each solve builds its own bounded MILP (`bounded`): no Pyomo model at all.
+            self._faces = TripFaces.of(trip)
+            self._index_layout(Layout(horizon, len(trip.regions)))
+            return
         self.model = _build(trip, horizon, dt, a_max, v_robot, weights)
         self.solver = PersistentHighs()
         self.solver.config.timer = None
@@ -148,8 +164,6 @@ class TripModel:
         self.highs: highspy.Highs = self.solver._solver_model
         configure(self.highs, self._options())
         self._index()
-        # The model as built: each direct solve starts from a copy (its bounds are rewritten).
-        self._lp = self.highs.getLp()
         cfg = self.solver.config.auto_updates
         # Only Params change between solves; skip the structural scans.
         for name in (
@@ -168,19 +182,21 @@ class TripModel:
     def _options(self) -> dict[str, object]:
         return dict(HIGHS_OPTIONS, time_limit=float(self.time_limit_s))
 
-    def _fresh_highs(self) -> highspy.Highs:
-        """A new HiGHS object holding the trip's model as built (no history, no clock)."""
-        h = new_highs(self._options())
-        h.passModel(self._lp)
-        return h
-
     @property
     def binaries(self) -> int:
         """Columns z of the whole trip model (most are switched off per step)."""
         return len(self._z_cols)
 
-    # -- index maps from the persistent interface -----------------------------------------------
+    # -- index maps ----------------------------------------------------------------------------
+    def _index_layout(self, layout: Layout) -> None:
+        """Column positions of the direct interface: the full layout of `bounded`."""
+        self._p_cols, self._v_cols, self._u_cols = layout.p, layout.v, layout.u
+        self._z_cols = layout.z
+        self._ep_cols, self._ev_cols, self._eu_cols = layout.ep, layout.ev, layout.eu
+        self._n_cols = layout.columns
+
     def _index(self) -> None:
+        """Column and row positions the persistent interface assigned."""
         m = self.model
         var_map = self.solver._pyomo_var_to_solver_var_map
         con_map = self.solver._pyomo_con_to_solver_con_map
@@ -227,19 +243,26 @@ class TripModel:
             return Solution(SolverOutcome.INFEASIBLE, 0.0)
         extra = separation is not None and separation.groups > 0
         if self.interface is Interface.DIRECT:
-            h = self._fresh_highs()
+            dt, a_max, weights = self._dims
+            milp = build_step(
+                self.trip, self._faces, self.N, dt, a_max, weights,
+                data.p_lo, data.p_hi, data.v_lo, data.v_hi, data.z_ub, data.p_ref, data.v_ref,
+            )  # fmt: skip
+            h = new_highs(self._options())
+            milp.pass_to(h)
+            if warm is not None:
+                warm = milp.reduce(warm)
             if extra:
                 assert separation is not None
                 self._append(h, separation)
                 if warm is not None:
                     p = warm[self._p_cols].reshape(self.N + 1, 2)
                     warm = np.concatenate([warm, separation.start(p)])
-            self._write_direct(h, data)
             if warm is not None:
                 _warm_start(h, warm)
             t0 = time.perf_counter()
             outcome = run_outcome(h, "MPC step")
-            return self._read(h, outcome, time.perf_counter() - t0)
+            return self._read(h, outcome, time.perf_counter() - t0, milp)
         h = self.highs
         h.clearSolver()
         added = self._append(h, separation) if extra and separation is not None else None
@@ -304,18 +327,6 @@ class TripModel:
         )
         return base, n_new, h.getNumRow() - n_rows, n_rows
 
-    def _write_direct(self, h: highspy.Highs, d: StepData) -> None:
-        N = self.N
-        lo = np.concatenate([d.p_lo[: N + 1].ravel(), d.v_lo.ravel(), np.zeros(len(self._z_cols))])
-        hi = np.concatenate([d.p_hi[: N + 1].ravel(), d.v_hi.ravel(), d.z_ub.ravel()])
-        idx = np.concatenate([self._p_cols, self._v_cols, self._z_cols])
-        h.changeColsBounds(len(idx), idx, lo, hi)
-        p_ref = d.p_ref[1:].ravel()
-        v_ref = d.v_ref[1:].ravel()
-        rows = np.concatenate([self._rows_p_up, self._rows_p_dn, self._rows_v_up, self._rows_v_dn])
-        up = np.concatenate([p_ref, -p_ref, v_ref, -v_ref])
-        h.changeRowsBounds(len(rows), rows, np.full(len(rows), -highspy.kHighsInf), up)
-
     def _write_params(self, d: StepData) -> None:
         m = self.model
         N, S = self.N, len(self.trip.regions)
@@ -331,11 +342,20 @@ class TripModel:
             for j in range(S):
                 m.z_ub[k, j] = float(d.z_ub[k - 1, j])
 
-    def _read(self, h: highspy.Highs, outcome: SolverOutcome, solver_s: float) -> Solution:
+    def _read(
+        self,
+        h: highspy.Highs,
+        outcome: SolverOutcome,
+        solver_s: float,
+        milp: StepMILP | None = None,
+    ) -> Solution:
+        """The plan in `h` (`milp`: the bounded MILP it holds, else the trip model)."""
         nodes = int(h.getInfo().mip_node_count)
         if not outcome.usable:
             return Solution(outcome, solver_s, nodes=nodes)
-        col = np.asarray(h.getSolution().col_value)
+        raw = np.asarray(h.getSolution().col_value)
+        own = milp.columns if milp is not None else self._n_cols
+        col = milp.expand(raw) if milp is not None else raw[:own]
         N = self.N
         z = col[self._z_cols].reshape(N - 1, len(self.trip.regions))
         return Solution(
@@ -345,8 +365,8 @@ class TripModel:
             v=col[self._v_cols].reshape(N + 1, 2),
             u=col[self._u_cols].reshape(N, 2),
             regions=np.argmax(z, axis=1),
-            columns=col[: self._n_cols],
-            separation=col[self._n_cols :].copy() if len(col) > self._n_cols else None,
+            columns=col,
+            separation=raw[own:].copy() if len(raw) > own else None,
             nodes=nodes,
             objective=float(h.getInfo().objective_function_value),
         )

@@ -34,6 +34,7 @@ def check_options(
     separation_margin_m: object,
     max_neighbours: object,
     respect_priority: object,
+    reuse_ticks: object = 0,
 ) -> Interface:
     """Raise ValueError for the first of `MPCController`'s options that breaks its rule;
     return the `Interface` that `interface` names."""
@@ -71,6 +72,16 @@ def check_options(
     ):
         raise ValueError(
             f"MPCController option max_neighbours = {max_neighbours!r}: must be an integer >= 0"
+        )
+    if (
+        isinstance(reuse_ticks, bool)
+        or not isinstance(reuse_ticks, int)
+        or not 0 <= reuse_ticks < horizon
+    ):
+        # A plan followed for `horizon` ticks has run out: the robot would stand still.
+        raise ValueError(
+            f"MPCController option reuse_ticks = {reuse_ticks!r}: must be an integer >= 0 "
+            f"and below the horizon ({horizon})"
         )
     try:
         checked = Interface(interface)

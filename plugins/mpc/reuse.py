@@ -1,0 +1,77 @@
+"""Solving less: follow the previous plan, one step on, while nothing has happened.
+
+A solve at tick k+1 re-plans what the solve at tick k already planned, with one more step at
+the end. While the robot is on its plan, the print caps allow the plan's speeds and no other
+robot can come near it, the shifted plan meets every constraint the new solve would impose:
+the floor's regions and zone limits (the same points, in the same regions), the caps (checked
+here against this tick's caps), the end at rest (its last point repeated, at rest), and the
+other robots (checked here with the margin, see `clear_of_all`). So the controller follows it
+for up to ``reuse_ticks`` ticks and solves again on an event: a deviation from the plan, new
+caps the plan breaks, a robot within reach, a new trip, or the plan's age.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fleet.plugins import Observation, RobotSpec
+from fleet.printing import CapSchedule
+from fleet_plugins.mpc.fallback import braking_path
+from fleet_plugins.mpc.model import Solution
+from fleet_plugins.mpc.separation import predict
+
+__all__ = ["shifted", "within_caps", "clear_of_all"]
+
+#: Tolerance (m/s) of the cap check (the solves' feasibility tolerance is 1e-9).
+_CAP_TOL = 1e-9
+
+
+def shifted(last: Solution) -> Solution:
+    """`last` moved one step on: its last point repeated, at rest (no input)."""
+    assert last.p is not None and last.v is not None
+    assert last.u is not None and last.regions is not None
+    return Solution(
+        last.outcome,
+        0.0,
+        p=np.vstack([last.p[1:], last.p[-1:]]),
+        v=np.vstack([last.v[1:], np.zeros((1, 2))]),
+        u=np.vstack([last.u[1:], np.zeros((1, 2))]),
+        regions=np.concatenate([last.regions[1:], last.regions[-1:]]),
+        columns=None,
+        objective=last.objective,
+    )
+
+
+def within_caps(obs: Observation, spec: RobotSpec, v: np.ndarray) -> bool:
+    """Whether the plan's velocities ``v`` (steps 0..N) keep the robot's limit and this tick's
+    print caps at every step 1..N (step 0 is the measured state)."""
+    n = len(v)
+    caps = CapSchedule(obs.speed_caps).step_caps(obs.t, spec.period, n)
+    bound = np.minimum(spec.v_max, caps)
+    return bool(np.all(np.abs(v[1:]) <= bound[1:, None] + _CAP_TOL))
+
+
+def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float) -> bool:
+    """Whether every robot in `obs.neighbours` stays out of reach of plan `p` (steps 0..N) over
+    the whole horizon, whatever it does of what a solve assumes: carry on with its plan or
+    brake along its line of travel.
+
+    Sound and cheap, step by step: over each step k -> k+1 the plan's segment lies in the box of
+    its two ends, and the neighbour (on its plan or braking) in the box of its four predicted
+    points at k and k+1. Those two boxes must lie more than ``r_i + r_j + margin`` apart along
+    one axis, so the two centres are that far apart along it at every instant of the step: the
+    separation rows of a solve hold with their margin, whichever robot would have yielded.
+    """
+    dt, N = spec.period, len(p) - 1
+    lo = np.minimum(p[:-1], p[1:])  # (N, 2): the plan's box over each step
+    hi = np.maximum(p[:-1], p[1:])
+    for n in obs.neighbours:
+        centres = predict(n, obs.t, dt, N)
+        stop = np.asarray(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))[:, 1:]
+        stop = np.vstack([stop, np.repeat(stop[-1:], N + 1 - len(stop), axis=0)])
+        ends = np.stack([centres[:-1], centres[1:], stop[:-1], stop[1:]])  # (4, N, 2)
+        half = spec.radius + float(n.radius) + margin
+        apart = (ends.min(axis=0) >= hi + half) | (ends.max(axis=0) <= lo - half)
+        if not apart.any(axis=1).all():
+            return False
+    return True

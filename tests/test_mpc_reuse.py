@@ -1,0 +1,149 @@
+"""Solving less (issue 17): the MPC follows its previous plan, one step on, while nothing has
+happened (`MPCController(reuse_ticks=...)`), and solves again on an event: a deviation, print
+caps the plan breaks, another robot within reach, or the plan's age. Real solves, real loops.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from fleet.engine import World
+from fleet.errors import PluginError
+from fleet.plugins import ControlStatus, load_controller
+from fleet.printing import CapSchedule
+from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
+from fleet_plugins.mpc import MPCController
+from tests.test_mpc import L_HALL, SPEC_1S, Loop, l_hall
+from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away
+
+
+def unsolved_runs(solved: list[bool]) -> list[int]:
+    """Lengths of the runs of ticks without a solve."""
+    runs, n = [], 0
+    for s in solved:
+        if s:
+            if n:
+                runs.append(n)
+            n = 0
+        else:
+            n += 1
+    return runs + ([n] if n else [])
+
+
+def test_reusing_the_plan_skips_solves_and_keeps_zones_and_caps() -> None:
+    # The slow zone round the machine and a cap while approaching it: the same trip as with a
+    # solve every tick, without a violation, arriving, with most ticks of cruising not solved.
+    caps = CapSchedule(((6.0, 21.0, 0.2),))
+    goal = (18.0, 2.0)
+    loop = Loop.start(
+        MPCController(horizon=8, reuse_ticks=3), l_hall(zone=True), (2.0, 9.5), SPEC_1S, caps=caps
+    )
+    assert loop.drive(goal, limit=100), f"stuck at {loop.p}"
+    assert loop.violations() == []
+    moving = [c for c in loop.commands if c.plan and c.plan[0][1:] != c.plan[-1][1:]]
+    solved = [c.solve is not None for c in moving]
+    assert loop.controller.reuses > len(moving) // 3  # it really skipped solves
+    assert max(unsolved_runs(solved)) <= 3  # never older than reuse_ticks
+    for c in loop.commands:
+        assert c.status is ControlStatus.OK
+    # Every solve's plan is solved afresh (the warm start from a followed plan included).
+    assert all(c.solve.outcome.usable for c in loop.commands if c.solve is not None)
+
+
+def at_a_reuse(reuse: int) -> Loop:
+    """A robot driving along the hall that has just followed its plan instead of solving, and
+    would follow it once more."""
+    loop = Loop.start(MPCController(horizon=8, reuse_ticks=reuse), L_HALL, (2.0, 5.0), SPEC_1S)
+    goal = (18.0, 5.0)
+    for _ in range(4):
+        loop.step(goal)
+    while loop.commands[-1].solve is None:
+        loop.step(goal)
+    loop.step(goal)
+    assert loop.commands[-1].solve is None
+    return loop
+
+
+def test_caps_the_plan_breaks_bring_a_solve() -> None:
+    loop = at_a_reuse(4)
+    # A cap from two steps on at half the plan's speed there: the plan breaks it, so the robot
+    # solves (with no new cap it would have followed the plan once more).
+    last = loop.controller._last
+    assert last is not None and last.v is not None
+    cap = 0.5 * float(np.max(np.abs(last.v[3:])))
+    assert cap > 0.1
+    now = loop.now
+    loop.caps = CapSchedule(((now + 2.0, now + 30.0, cap),))
+    assert loop.step((18.0, 5.0)).solve is not None
+    for _ in range(30):
+        loop.step((18.0, 5.0))
+    assert loop.violations() == []
+
+
+def test_a_deviation_from_the_plan_brings_a_solve() -> None:
+    loop = at_a_reuse(4)
+    loop.p = loop.p + np.array([0.0, 0.01])  # pushed 1 cm off the plan
+    assert loop.step((18.0, 5.0)).solve is not None
+
+
+def test_without_an_event_the_plan_is_followed_until_its_age() -> None:
+    loop = at_a_reuse(3)
+    assert loop.step((18.0, 5.0)).solve is None  # the second tick without a solve
+    assert loop.step((18.0, 5.0)).solve is None  # the third
+    assert loop.step((18.0, 5.0)).solve is not None  # reuse_ticks reached
+
+
+@pytest.mark.parametrize("reuse", [2, 6])
+def test_a_crossing_robot_is_kept_clear_of_with_plans_reused(reuse: int) -> None:
+    # As with a solve every tick: outside the square of r_i + r_j + margin at every step of
+    # every plan followed, solved or reused; the crossing robot brings solves, the rest not.
+    run = Run(MPCController(horizon=12, reuse_ticks=reuse), crossing)
+    assert run.drive(80)
+    for cmd in run.commands:
+        assert cmd.status is ControlStatus.OK
+        plan = np.array(cmd.plan)
+        there = np.array([crossing(t) for t in plan[:, 0]])
+        sep = np.max(np.abs(plan[1:, 1:] - there[1:]), axis=1)
+        assert np.all(sep >= CONTACT + 0.1 - 1e-6), sep.min()
+    assert min(run.gaps) >= CONTACT + 0.1 - 1e-6
+    assert run.controller.reuses > 0
+    assert sum(b > 0 for b in run.controller.separation_binaries) >= 5
+
+
+def test_a_robot_out_of_reach_does_not_stop_the_reuse() -> None:
+    run = Run(MPCController(horizon=8, reuse_ticks=4), far_away)
+    assert run.drive(80)
+    solved = [c.solve is not None for c in run.commands]
+    assert run.controller.reuses >= len(run.commands) // 2
+    assert max(unsolved_runs(solved)) <= 4
+
+
+@pytest.mark.parametrize("value", [-1, 1.5, True, "2", 25])
+def test_a_bad_reuse_ticks_is_refused(value: object) -> None:
+    with pytest.raises(ValueError, match=f"reuse_ticks = {re.escape(repr(value))}: must"):
+        MPCController(reuse_ticks=value)  # type: ignore[arg-type]
+    with pytest.raises(PluginError, match="'mpc'.*reuse_ticks"):
+        load_controller("mpc", {"reuse_ticks": value})
+
+
+def test_a_fleet_reusing_plans_is_safe_and_the_same_with_0_and_2_workers() -> None:
+    # Through the engine: 6 MPC robots on the shop floor with reuse, in this process and in
+    # two worker processes: the same digest (a reuse depends on the observation only), no
+    # violation, and fewer solves than the same fleet solving every tick.
+    base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml").override(
+        robots=6, duration=120.0, controller="mpc"
+    )
+    reusing = replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 4}))
+    results = [World(reusing, workers=w).run() for w in (0, 2)]
+    summaries = [r.summary for r in results]
+    for result, s in zip(results, summaries, strict=True):
+        assert set(s["solver"]["termination"]) == {"optimal"}  # none cut by the wall clock
+        assert sum(s["violations"].values()) == 0, result.safety.examples
+    assert summaries[0]["digest"] == summaries[1]["digest"]
+    every_tick = World(base).run().summary
+    assert summaries[0]["solver"]["steps"] < 0.6 * every_tick["solver"]["steps"]
+    assert summaries[0]["jobs"]["completed"] >= every_tick["jobs"]["completed"] - 1 >= 0
