@@ -38,7 +38,6 @@ __all__ = [
     "outranks",
     "close",
     "must_hold",
-    "clear_of_boxes",
 ]
 
 
@@ -143,7 +142,7 @@ def _length(paths: np.ndarray) -> float:
 def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
     """Whether a moving robot that this one outranks is `close` (their centres could come
     within ``r_i + r_j + margin``). Such a robot relies on this one's published plan or
-    braking path: this one then only follows its plan or brakes (`clear_of_boxes` says which),
+    braking path: this one then only follows its plan (while `reuse.clear_of_all`) or brakes,
     it does not re-plan."""
     for n in obs.neighbours:
         if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
@@ -151,31 +150,6 @@ def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) ->
         if close(obs, n, spec, spec.radius + float(n.radius) + margin):
             return True
     return False
-
-
-#: Points per step at which `clear_of_boxes` tests a plan against the boxes (between samples).
-BOX_CHECKS_PER_STEP = 8
-
-
-def clear_of_boxes(p: np.ndarray, obstacles: list[Obstacle]) -> bool:
-    """Whether plan `p` (steps 0..N from now) stays out of the hard part of every obstacle's
-    box (`Obstacle.half` less its soft margin) from step 1 to step N, tested at
-    `BOX_CHECKS_PER_STEP` points per step (plan, centres and half-widths interpolated)."""
-    s = np.linspace(0.0, 1.0, BOX_CHECKS_PER_STEP, endpoint=False)[:, None, None]
-    for ob in obstacles:
-        steps = min(len(p), len(ob.centres))
-        q, c = np.asarray(p[1:steps], dtype=float), ob.centres[1:steps]
-        h = ob.half[1:steps] - ob.margin
-        if len(q) == 0:
-            continue
-        if len(q) > 1:  # the points between samples k and k+1
-            q = np.vstack([q[-1:], (q[:-1] + s * np.diff(q, axis=0)).reshape(-1, 2)])
-            c = np.vstack([c[-1:], (c[:-1] + s * np.diff(c, axis=0)).reshape(-1, 2)])
-            h = np.vstack([h[-1:], (h[:-1] + s * np.diff(h, axis=0)).reshape(-1, 2)])
-        inside = np.all(np.abs(q - c) < h - 1e-9, axis=1)
-        if np.any(inside):
-            return False
-    return True
 
 
 def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:
