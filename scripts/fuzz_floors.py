@@ -463,8 +463,13 @@ def generate_case(seed: int, index: int, controller: str = "both", quick: bool =
     if count > 1 and period > fastest and rng.random() < 0.9:
         period = scen["robots"]["period_s"] = max(fastest, 0.1)
     # ... and sees far enough to stop for each other.
+    from fleet.scenario import RobotsConfig, sensing_needed  # the rule `check_fleet` applies
+
     r = scen["robots"]
-    needed = 2 * radius + r["v_max"] ** 2 / r["a_max"] + 2 * r["v_max"] * r["period_s"]
+    group = RobotsConfig(
+        count=count, radius=radius, v_max=r["v_max"], a_max=r["a_max"], period_s=r["period_s"]
+    )
+    needed = sensing_needed(group, group)
     sensing = scen["scenario"]["sensing_radius_m"]
     if count > 1 and sensing < needed and rng.random() < 0.9:
         scen["scenario"]["sensing_radius_m"] = math.ceil(10 * needed) / 10

@@ -107,7 +107,7 @@ def test_mpc_robots_never_collide_on_random_floors(floor, gap):
         controller=PluginChoice("mpc", {"horizon": 10}),
         dispatcher=PluginChoice("auction"),
         jobs=JobsConfig(mode="scripted", scripted=(both_ways(0.0, 0), both_ways(gap, 1))),
-        sensing_radius_m=5.0,
+        sensing_radius_m=6.3,  # the rule (`fleet.scenario.sensing_needed`) asks 6.26 m,
         deadlock_after_s=10.0,
     )
     try:

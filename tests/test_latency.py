@@ -95,7 +95,7 @@ def hall(tmp_path: Path) -> Scenario:
     (tmp_path / "hall.toml").write_text(MAP)
     path = tmp_path / "hall_run.toml"
     path.write_text(
-        '[scenario]\nmap = "hall.toml"\nduration_s = 40\nseed = 3\nsensing_radius_m = 4\n'
+        '[scenario]\nmap = "hall.toml"\nduration_s = 40\nseed = 3\nsensing_radius_m = 6\n'
         '[robots]\ncount = 3\nperiod_s = 0.25\n[jobs]\nrate_per_h = 360\nstations = ["east"]\n'
     )
     return load_scenario(path)

@@ -101,6 +101,38 @@ def test_collisions_count_episodes_not_samples():
     assert [f.t for f in check_collisions(t, idx, xy, [0.4, 0.4], ["a", "b"])] == [1.0, 3.0]
 
 
+def test_robots_that_pass_through_each_other_between_samples_collide():
+    # Head-on along one line at 1.25 m/s each with 0.5 s periods: every sample of one falls
+    # midway between two of the other's (0.625 m apart at each sample: radii 0.3 + 0.3 clear).
+    t = np.arange(6) * 0.5
+    a = np.column_stack([1.25 * t, np.zeros(6)])
+    b = np.column_stack([5.625 - 1.25 * t, np.zeros(6)])
+    assert np.min(np.hypot(*(a - b).T)) > 0.6
+    found = check_collisions(np.r_[t, t], np.repeat([0, 1], 6), np.vstack([a, b]), [0.3] * 2, "ab")
+    assert len(found) == 1 and found[0].t == pytest.approx(2.25)
+    assert found[0].detail == "a and b 0.000 m apart"
+    assert (found[0].x, found[0].y) == (pytest.approx(2.8125), 0.0)
+
+
+def test_robots_with_different_periods_are_compared_between_their_samples():
+    # a samples every 0.5 s, b every 0.3 s: they share only t = 0, 1.5, 3.0, when they are far
+    # apart (6, 1.5 and 9 m), and cross at t = 1.2 at x = 3 (2.5 m/s each, head-on).
+    ta, tb = np.arange(7) * 0.5, np.arange(11) * 0.3
+    a = np.column_stack([2.5 * ta, np.zeros(7)])
+    b = np.column_stack([6.0 - 2.5 * tb, np.zeros(11)])
+    common = np.intersect1d(ta, tb)
+    assert np.all(np.abs(2.5 * common - (6.0 - 2.5 * common)) > 0.8)
+    t, idx, xy = np.r_[ta, tb], np.r_[np.zeros(7), np.ones(11)], np.vstack([a, b])
+    found = check_collisions(t, idx, xy, [0.4, 0.4], ["a", "b"])
+    assert len(found) == 1 and found[0].t == pytest.approx(1.2)
+    assert found[0].x == pytest.approx(3.0) and "0.000 m apart" in found[0].detail
+    # b 1 m off a's line: they pass 1 m apart, clear of 0.8 m.
+    xy[7:, 1] = 1.0
+    assert check_collisions(t, idx, xy, [0.4, 0.4], ["a", "b"]) == []
+    # Tracks that do not overlap in time are never compared.
+    assert check_collisions(np.r_[ta, tb + 10], idx, np.zeros((18, 2)), [0.4] * 2, "ab") == []
+
+
 def test_checker_counts_per_kind(hall):
     tr = {"a": steps([(3.5, 1), (6.5, 1)], dt=3.0), "b": steps([(3.5, 1.5), (3.5, 1.5)])}
     report = SafetyChecker(hall).check(tr, {"a": 0.4, "b": 0.4})

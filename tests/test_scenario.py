@@ -1,5 +1,7 @@
 """Scenario files: defaults, relative map paths, and a clear error for each bad input."""
 
+import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -231,7 +233,8 @@ def test_robots_that_could_cross_unseen_in_one_period_are_refused_by_name() -> N
         check_fleet(_fleet(period_s=1.0))  # 1 m per period, radius 0.4
     assert err.value.field == "robots.period_s" and err.value.value == 1.0
     assert "period_s <= 0.8" in str(err.value)
-    check_fleet(_fleet(period_s=0.8))  # exactly the diameter: allowed
+    # exactly the diameter: allowed (seeing far enough for it: 8.15 m)
+    check_fleet(replace(_fleet(period_s=0.8), sensing_radius_m=8.2))
     check_fleet(_fleet(period_s=1.0, v_max=0.5))  # slower robots may plan less often
     check_fleet(_fleet(period_s=1.0, count=1))  # alone (the paper's case 3 runs at 1 s)
 
@@ -250,12 +253,58 @@ def test_a_robot_wider_than_the_maps_clearance_is_refused() -> None:
 
 
 def test_robots_that_see_each_other_too_late_to_stop_are_refused() -> None:
-    from fleet.scenario import check_fleet
+    from fleet.scenario import check_fleet, sensing_needed
 
-    # 2 * 0.4 + 1**2 / 0.5 + 2 * 1 * 0.25 = 3.3 m
+    # 2 * 0.4 + sqrt(2) * (1**2 / 0.5 + 4 * 1 * 0.25) = 5.043 m: the diagonal counts (v_max
+    # bounds each axis); the rule before it, 2 * 0.4 + 1**2 / 0.5 + 2 * 1 * 0.25 = 3.3 m, let
+    # MPC robots on diagonals see each other too late (tests/test_mpc_contact.py)
+    group = _fleet().robots[0]
+    assert sensing_needed(group, group) == pytest.approx(0.8 + math.sqrt(2) * 3.0)
     with pytest.raises(ScenarioError) as err:
-        check_fleet(replace(_fleet(), sensing_radius_m=3.2))
-    assert err.value.field == "scenario.sensing_radius_m" and "3.3 m" in str(err.value)
-    check_fleet(replace(_fleet(), sensing_radius_m=3.3))
+        check_fleet(replace(_fleet(), sensing_radius_m=5.0))
+    assert err.value.field == "scenario.sensing_radius_m" and err.value.value == 5.0
+    assert err.value.source.endswith("fleet.toml") and "at least 5.05 m for robots" in str(
+        err.value
+    )
+    check_fleet(replace(_fleet(), sensing_radius_m=5.05))
+    check_fleet(_fleet())  # the shipped fleet scenario sets 6 m
     check_fleet(replace(_fleet(count=1), sensing_radius_m=1.0))  # alone
     check_fleet(replace(_fleet(), sensing_radius_m=0.0))  # blind: robots ignore each other
+    # The MPC property test's robots (radius 0.3, 0.5 s periods) need 6.26 m.
+    mpc = replace(group, radius=0.3, period_s=0.5)
+    assert sensing_needed(mpc, mpc) == pytest.approx(6.2569, abs=1e-4)
+
+
+def test_two_groups_must_see_far_enough_for_each_pair() -> None:
+    from fleet.scenario import check_fleet, sensing_needed
+
+    sc = _fleet()
+    quick, coarse = replace(sc.robots[0], count=1), replace(sc.robots[0], count=1, period_s=0.5)
+    both = replace(sc, robots=(quick, coarse))
+    # Each group alone asks 5.04 m and 6.46 m; together 0.8 + sqrt(2) * (1.5 + 2) = 5.75 m.
+    assert sensing_needed(quick, coarse) == pytest.approx(0.8 + math.sqrt(2) * 3.5)
+    with pytest.raises(ScenarioError) as err:
+        check_fleet(replace(both, sensing_radius_m=6.0))
+    assert err.value.field == "scenario.sensing_radius_m"
+    assert "6.46 m for robots[1]" in str(err.value)
+    check_fleet(replace(both, sensing_radius_m=6.46))
+
+
+def test_a_scenario_file_that_sees_too_little_is_refused_naming_the_file(tmp_path: Path) -> None:
+    from fleet.engine import World
+    from fleet.scenario import load_scenario
+
+    text = (REPO_ROOT / "scenarios" / "fleet.toml").read_text()
+    text = text.replace("sensing_radius_m = 6.0", "sensing_radius_m = 4.5", 1)
+    shop = (REPO_ROOT / "maps" / "shop_floor.toml").as_posix()
+    text = re.sub(r'map = "[^"]+"', f'map = "{shop}"', text, count=1)
+    path = tmp_path / "short_sight.toml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as err:
+        World(load_scenario(path))
+    assert (err.value.source, err.value.field, err.value.value) == (
+        str(path),
+        "scenario.sensing_radius_m",
+        4.5,
+    )
+    assert f"{path}: scenario.sensing_radius_m = 4.5" in str(err.value)

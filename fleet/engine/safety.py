@@ -11,8 +11,10 @@ straight segment ``p[k] -> p[k+1]`` at the recorded velocity ``v[k]``.
   count; a step running along a shared boundary is bound by the regions on both sides).
 - **print_speed**: ``|v[k].x|`` or ``|v[k].y|`` exceeds the cap of a print task that overlaps the
   step's interval ``[t[k], t[k+1])`` (`fleet.printing.CapSchedule`).
-- **collision**: two robots sampled at the same time closer than the sum of their radii; one
-  violation per pair and contact episode.
+- **collision**: two robots closer than the sum of their radii at any time both are recorded,
+  between samples too (each moves in a straight line from one of its samples to the next, so
+  robots with different control periods are compared too); one violation per pair and contact
+  episode.
 """
 
 from __future__ import annotations
@@ -197,10 +199,16 @@ def check_collisions(
     radii: Sequence[float],
     names: Sequence[str],
 ) -> list[Violation]:
-    """Pairs of robots closer than the sum of their radii at a common sample time.
+    """Pairs of robots closer than the sum of their radii at any time both are recorded, between
+    their samples too.
 
-    Rows (t, robot_index, xy) may come in any order. One violation per pair and episode: a pair
-    that stays in contact over consecutive common samples counts once.
+    Each robot moves in a straight line at constant velocity from one of its samples to the
+    next, so on the union of two robots' sample times (robots with different control periods
+    sample at different times) their offset moves in a straight line too, and its nearest
+    approach on each interval is exact: two robots that pass through each other between
+    samples are caught, however their samples fall. Rows (t, robot_index, xy) may come in any
+    order. One violation per pair and contact episode (contact that lasts across a sample
+    counts once), reported where the pair comes closest within the episode's first interval.
     """
     t = np.asarray(t, dtype=float)
     robot_index = np.asarray(robot_index, dtype=np.int64)
@@ -208,57 +216,114 @@ def check_collisions(
     if len(t) == 0:
         return []
     radii_arr = np.asarray(radii, dtype=float)
-    reach = 2.0 * float(radii_arr.max())
-    order = np.lexsort((robot_index, t))
+    order = np.lexsort((t, robot_index))
     t, robot_index, xy = t[order], robot_index[order], xy[order]
-    bounds = np.flatnonzero(np.diff(t)) + 1
-    last_contact: dict[tuple[int, int], int] = {}
+    robots = np.unique(robot_index)
+    bounds = np.searchsorted(robot_index, robots)
+    ends = np.r_[bounds[1:], len(t)]
+    tracks = {
+        int(r): (t[a:b], xy[a:b]) for r, a, b in zip(robots, bounds, ends, strict=True) if b > a
+    }
     out: list[Violation] = []
-    for step, (a, b) in enumerate(zip(np.r_[0, bounds], np.r_[bounds, len(t)], strict=True)):
-        if b - a < 2:
-            continue
-        for i, j, d in _close_pairs(xy[a:b], robot_index[a:b], radii_arr, reach):
-            key = (i, j)
-            if last_contact.get(key) != step - 1:
-                p = xy[a:b][robot_index[a:b] == i][0]
-                out.append(
-                    Violation(
-                        "collision",
-                        names[i],
-                        float(t[a]),
-                        float(p[0]),
-                        float(p[1]),
-                        f"{names[i]} and {names[j]} {d:.3f} m apart",
-                    )
-                )
-            last_contact[key] = step
+    for i, j in _candidate_pairs(tracks, radii_arr):
+        limit = radii_arr[i] + radii_arr[j] - 1e-9
+        for when, d, p in _contacts(*tracks[i], *tracks[j], limit):
+            detail = f"{names[i]} and {names[j]} {d:.3f} m apart"
+            out.append(Violation("collision", names[i], when, p[0], p[1], detail))
+    out.sort(key=lambda v: (v.t, v.robot, v.detail))
     return out
 
 
-def _close_pairs(p: np.ndarray, ids: np.ndarray, radii: np.ndarray, reach: float):
-    """Pairs (i, j, distance), i < j, of robots at positions `p` closer than their radii sum."""
-    if len(p) <= 256:
-        # All pairs at once: cheap for the fleet sizes most runs have.
-        d = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
-        limit = radii[ids][:, None] + radii[ids][None, :] - 1e-9
-        a, b = np.nonzero(np.triu(d < limit, k=1))
-        pairs = [(int(ids[x]), int(ids[y]), float(d[x, y])) for x, y in zip(a, b, strict=True)]
+#: Length (s) of the time windows in which `_candidate_pairs` boxes each robot's track.
+WINDOW_S = 2.0
+
+
+def _candidate_pairs(
+    tracks: Mapping[int, tuple[np.ndarray, np.ndarray]], radii: np.ndarray
+) -> list[tuple[int, int]]:
+    """Pairs (i < j) of robots whose tracks could come within their radii: per time window of
+    `WINDOW_S`, the box round each track's samples there and the first one after (so it holds
+    every segment that starts in the window), and the pairs whose boxes, grown by the largest
+    radius sum, overlap in some window (a k-d tree over box centres finds them in large
+    fleets)."""
+    keys, los, his, who = [], [], [], []
+    for r, (t, p) in tracks.items():
+        window = np.floor(t / WINDOW_S).astype(np.int64)
+        cross = np.flatnonzero(np.diff(window) != 0)  # segments that end in the next window
+        w = np.r_[window, window[cross]]
+        q = np.vstack([p, p[cross + 1]])
+        order = np.argsort(w, kind="stable")
+        w, q = w[order], q[order]
+        starts = np.flatnonzero(np.r_[True, np.diff(w) != 0])
+        keys.append(w[starts])
+        los.append(np.minimum.reduceat(q, starts, axis=0))
+        his.append(np.maximum.reduceat(q, starts, axis=0))
+        who.append(np.full(len(starts), r))
+    if not keys:
+        return []
+    key, lo, hi, rid = (np.concatenate(x) for x in (keys, los, his, who))
+    reach = 2.0 * float(radii.max())
+    pairs: set[tuple[int, int]] = set()
+    order = np.argsort(key, kind="stable")
+    key, lo, hi, rid = key[order], lo[order], hi[order], rid[order]
+    bounds = np.flatnonzero(np.r_[True, np.diff(key) != 0, True])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        if b - a < 2:
+            continue
+        centre, half = (lo[a:b] + hi[a:b]) / 2, (hi[a:b] - lo[a:b]) / 2
+        # Boxes meet (grown by `reach`) only if their centres are this close on each axis.
+        limit = float(np.max(half)) * 2.0 + reach
+        near = cKDTree(centre).query_pairs(limit * np.sqrt(2.0), output_type="ndarray")
+        if len(near) == 0:
+            continue
+        x, y = near[:, 0], near[:, 1]
+        gap = np.abs(centre[x] - centre[y]) - half[x] - half[y]
+        meet = np.all(gap < reach, axis=1)
+        for u, v in zip(rid[a:b][x[meet]], rid[a:b][y[meet]], strict=True):
+            pairs.add((int(min(u, v)), int(max(u, v))))
+    return sorted(pairs)
+
+
+def _contacts(
+    t1: np.ndarray, p1: np.ndarray, t2: np.ndarray, p2: np.ndarray, limit: float
+) -> list[tuple[float, float, tuple[float, float]]]:
+    """The contact episodes of two tracks (sample times, positions): per episode the time and
+    distance of the closest approach in its first interval, and where the first robot is then.
+    """
+    if np.array_equal(t1, t2):
+        times, a, b = t1, p1, p2
     else:
-        # Large fleets: a k-d tree finds the pairs within reach (the rest cannot touch),
-        # listed as comparing each robot with the ones after it in x order would.
-        order = np.argsort(p[:, 0], kind="stable")
-        ps, idx = p[order], ids[order]
-        near = cKDTree(ps).query_pairs(reach, output_type="ndarray")
-        a, b = near[:, 0], near[:, 1]  # a < b: positions in x order
-        first = np.lexsort((b, a))
-        a, b = a[first], b[first]
-        d = np.hypot(ps[b, 0] - ps[a, 0], ps[b, 1] - ps[a, 1])
-        hit = d < radii[idx[a]] + radii[idx[b]] - 1e-9
-        pairs = [
-            (int(idx[x]), int(idx[y]), float(dd))
-            for x, y, dd in zip(a[hit], b[hit], d[hit], strict=True)
-        ]
-    return [(min(i, j), max(i, j), d) for i, j, d in pairs]
+        start, end = max(t1[0], t2[0]), min(t1[-1], t2[-1])
+        if start > end:
+            return []  # never recorded at the same time
+        times = np.union1d(t1, t2)
+        times = times[(times >= start) & (times <= end)]
+        a = np.column_stack([np.interp(times, t1, p1[:, 0]), np.interp(times, t1, p1[:, 1])])
+        b = np.column_stack([np.interp(times, t2, p2[:, 0]), np.interp(times, t2, p2[:, 1])])
+    d = a - b
+    at_samples = np.hypot(d[:, 0], d[:, 1])
+    if len(times) == 1:
+        if at_samples[0] >= limit:
+            return []
+        return [(float(times[0]), float(at_samples[0]), (float(a[0, 0]), float(a[0, 1])))]
+    step = np.diff(d, axis=0)
+    length2 = np.einsum("ij,ij->i", step, step)
+    s = np.divide(
+        -np.einsum("ij,ij->i", d[:-1], step), length2, out=np.zeros_like(length2), where=length2 > 0
+    )
+    s = np.clip(s, 0.0, 1.0)
+    nearest = d[:-1] + s[:, None] * step
+    closest = np.hypot(nearest[:, 0], nearest[:, 1])
+    touching = closest < limit
+    # An episode goes on into the next interval only if the pair is in contact at the sample
+    # between them (the distance within an interval is convex: one stretch of contact each).
+    goes_on = np.r_[False, touching[:-1] & (at_samples[1:-1] < limit)]
+    out = []
+    for k in np.flatnonzero(touching & ~goes_on):
+        when = times[k] + s[k] * (times[k + 1] - times[k])
+        where = a[k] + s[k] * (a[k + 1] - a[k])
+        out.append((float(when), float(closest[k]), (float(where[0]), float(where[1]))))
+    return out
 
 
 class SafetyChecker:

@@ -27,6 +27,7 @@ from fleet.scenario.reader import (
     parse_latency,
     parse_scenario,
     parse_with_settings,
+    sensing_needed,
 )
 from fleet.scenario.spec import ScenarioFile
 
@@ -43,6 +44,7 @@ __all__ = [
     "Latency",
     "parse_latency",
     "check_fleet",
+    "sensing_needed",
     "check_lockstep",
     "check_warmup",
     "load_scenario",

@@ -540,9 +540,8 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
       (`scripts/fuzz_floors.py` found contacts at 1 s periods with v_max 1 and radius 0.4, for
       both built-in controllers, and none at 0.5 s).
     - Robots that see each other see far enough to stop for each other: `sensing_radius_m`
-      is at least ``2 * radius + v_max**2 / a_max + 2 * v_max * period_s`` for every group
-      (two robots closing head-on at full speed brake in ``v_max**2 / a_max`` between them,
-      after a period to see and a period to act). The floor fuzz had two MPC robots at 1 s
+      is at least `sensing_needed` (for two robots of one group ``2 * radius + sqrt(2) *
+      (v_max**2 / a_max + 4 * v_max * period_s)``). The floor fuzz had two MPC robots at 1 s
       periods drive through each other from outside a 3.3 m sensing radius, never seen.
     - With the floor's `clearance` given and above 0: no robot is wider than it. The free space
       is the map's open area shrunk by the clearance, so a larger robot would overlap walls and
@@ -563,16 +562,19 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
                 f"in one period: v_max * period_s = {g.v_max * g.period_s:g} m > 2 * radius = "
                 f"{2.0 * g.radius:g} m; use period_s <= {2.0 * g.radius / g.v_max:g}",
             )
-        needed = 2.0 * g.radius + g.v_max**2 / g.a_max + 2.0 * g.v_max * g.period_s
-        if fleet and scenario.sensing_radius_m < needed - 1e-9:
-            raise ScenarioError(
-                scenario.source,
-                "scenario.sensing_radius_m",
-                scenario.sensing_radius_m,
-                f"robots that see each other must see far enough to stop for each other: at "
-                f"least 2 * radius + v_max**2 / a_max + 2 * v_max * period_s = {needed:.3g} m "
-                f"for {where}",
-            )
+        for j, h in enumerate(groups[: i + 1]):
+            needed = sensing_needed(g, h)
+            if fleet and scenario.sensing_radius_m < needed - 1e-9:
+                pair = where if i == j else f"robots[{j}] and {where}"
+                raise ScenarioError(
+                    scenario.source,
+                    "scenario.sensing_radius_m",
+                    scenario.sensing_radius_m,
+                    f"robots that see each other must see far enough to stop for each other: "
+                    f"at least {math.ceil(needed * 100) / 100:g} m for {pair} (radius + radius "
+                    f"+ sqrt(2) * (v_max**2 / (2 * a_max) + 2 * v_max * period_s) of each: "
+                    f"v_max bounds each axis, so on a diagonal a robot goes sqrt(2) * v_max)",
+                )
         if clearance and g.radius > clearance + 1e-9:
             raise ScenarioError(
                 scenario.source,
@@ -581,6 +583,24 @@ def check_fleet(scenario: Scenario, clearance: float | None = None) -> None:
                 f"wider than the map's floor.clearance ({clearance:g} m), the room the map keeps "
                 "round walls and obstacles: raise the clearance in the map or use a smaller radius",
             )
+
+
+def sensing_needed(one: RobotsConfig, other: RobotsConfig) -> float:
+    """The least sensing radius (m) at which a robot of group `one` and one of group `other`
+    (the same group or not) see each other early enough to stop for each other:
+    ``r1 + r2 + sqrt(2) * (reach(one) + reach(other))``, with each robot's
+    ``reach = v_max**2 / (2 * a_max) + 2 * v_max * period_s``: its braking distance from full
+    speed, half a period the discrete step travels on at the present speed, a period unseen
+    (robots observe each other only at their ticks), a period to react and half a period more
+    (a higher-priority robot keeps its course one tick until the lower one is close). `v_max`
+    and `a_max` bound each axis, so on a diagonal a robot goes sqrt(2) times as fast and brakes
+    over sqrt(2) times the distance. For two robots of one group: ``2 * radius + sqrt(2) *
+    (v_max**2 / a_max + 4 * v_max * period_s)``."""
+
+    def reach(g: RobotsConfig) -> float:
+        return g.v_max**2 / (2.0 * g.a_max) + 2.0 * g.v_max * g.period_s
+
+    return one.radius + other.radius + math.sqrt(2.0) * (reach(one) + reach(other))
 
 
 def check_warmup(scenario: Scenario) -> None:

@@ -29,10 +29,10 @@ from fleet.plugins import (
     SolveReport,
     SolverOutcome,
 )
-from fleet_plugins.mpc.fallback import brake, follow_previous
+from fleet_plugins.mpc.fallback import brake, follow_previous, park
 from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
-from fleet_plugins.mpc.neighbours import clear_of_neighbours, robots_to_avoid
+from fleet_plugins.mpc.neighbours import clear_of_neighbours, must_hold, robots_to_avoid
 from fleet_plugins.mpc.options import check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, shifted, within_caps
@@ -47,6 +47,16 @@ PARKED_SPEED = 1e-6
 PARKED_DISTANCE = 1e-3
 #: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
 PLAN_MATCH = 1e-6
+
+
+def parked(obs: Observation, goal: tuple[float, float], radius: float) -> bool:
+    """At rest (to `PARKED_SPEED`) within `PARKED_DISTANCE` of the goal, with no robot closer
+    than contact (then a solve may move it away)."""
+    if max(abs(obs.vx), abs(obs.vy)) > PARKED_SPEED:
+        return False
+    if math.hypot(goal[0] - obs.x, goal[1] - obs.y) > PARKED_DISTANCE:
+        return False
+    return all(math.hypot(n.x - obs.x, n.y - obs.y) > radius + n.radius for n in obs.neighbours)
 
 
 class MPCController(Controller):
@@ -76,9 +86,10 @@ class MPCController(Controller):
     (`separation`). The margin is soft (a heavy cost), contact is not. With
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
     on a tie, the smaller robot id), and of the robots it outranks only when they are parked
-    for the whole horizon or close (`neighbours` says why). A moving robot's square covers both
-    its plan and its braking path (it may drop its plan at its next tick). At most
-    ``max_neighbours`` robots, the nearest, are constrained.
+    for the whole horizon or close (`neighbours` says why); with a moving lower robot close it
+    does not solve but follows its previous plan while that keeps clear, else brakes. A moving
+    robot's square covers both its plan and its braking path (it may drop its plan at its next
+    tick). At most ``max_neighbours`` robots, the nearest, are constrained.
 
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
     error) the controller falls back: the previous plan shifted by one step if the robot is on
@@ -223,19 +234,18 @@ class MPCController(Controller):
             self._goal = self._trip = self._model = self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.IDLE)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
-        if self._parked(obs, goal):
-            # At rest on the goal the optimum is to stay: skip the solve. Others see a robot
-            # parked for the whole horizon (and keep clear of it as such).
-            # (A speed left from the solver's tolerances is cancelled within the step.)
-            dt = spec.period
-            end = obs.t + self.horizon * dt
-            plan = ((obs.t, obs.x, obs.y), (end, obs.x + dt * obs.vx, obs.y + dt * obs.vy))
-            return Command(-obs.vx / dt + 0.0, -obs.vy / dt + 0.0, ControlStatus.OK, plan)
+        if parked(obs, goal, spec.radius):
+            return park(obs, spec, self.horizon)  # at rest on the goal: staying is optimal
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
             return brake(obs, spec, self.horizon, ControlStatus.FALLBACK)
         assert self._trip is not None and self._model is not None
-        if self._reusable(obs):
+        hold = self.respect_priority and self.avoid_robots
+        hold = hold and must_hold(obs, spec, self.horizon, self.separation_margin_m)
+        if self._reusable(obs, hold):
             return self._reuse(obs)
+        if hold:  # a close lower robot relies on this one's plan or braking path: no solve
+            self._last = None
+            return brake(obs, spec, self.horizon, ControlStatus.OK)
         self._reused = 0
         data, warm = self._step_data(obs)
         separation = self._separation(obs, data)
@@ -264,10 +274,13 @@ class MPCController(Controller):
             return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
         return self._fallback(obs, report)
 
-    def _reusable(self, obs: Observation) -> bool:
-        """Whether the previous plan, one step on, may be followed instead of a solve."""
+    def _reusable(self, obs: Observation, hold: bool = False) -> bool:
+        """Whether the previous plan, one step on, may be followed instead of a solve (with
+        `hold`, as many ticks as it keeps clear: `neighbours.must_hold`)."""
         last = self._last
-        if self._reused >= self.reuse_ticks or last is None or self._last_model is not self._model:
+        if self._reused >= self.reuse_ticks and not hold:
+            return False
+        if last is None or self._last_model is not self._model:
             return False
         if not self._on_plan(obs):
             return False
@@ -297,16 +310,6 @@ class MPCController(Controller):
             (obs.t + k * dt, float(last.p[k, 0]), float(last.p[k, 1])) for k in range(len(last.p))
         )
         return Command(float(last.u[0, 0]), float(last.u[0, 1]), ControlStatus.OK, plan)
-
-    def _parked(self, obs: Observation, goal: tuple[float, float]) -> bool:
-        """At rest (to `PARKED_SPEED`) within `PARKED_DISTANCE` of the goal, with no robot closer
-        than contact (then a solve may move it away)."""
-        if max(abs(obs.vx), abs(obs.vy)) > PARKED_SPEED:
-            return False
-        if math.hypot(goal[0] - obs.x, goal[1] - obs.y) > PARKED_DISTANCE:
-            return False
-        r = self.context.spec.radius
-        return all(math.hypot(n.x - obs.x, n.y - obs.y) > r + n.radius for n in obs.neighbours)
 
     def _refine(self, milp: Solution, data: StepData, separation: Separation | None) -> Solution:
         """The paper's quadratic cost for the MILP's regions; the MILP's plan if that fails."""

@@ -14,7 +14,7 @@ from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveR
 from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet_plugins.mpc.model import Solution
 
-__all__ = ["REST_SPEED", "follow_previous", "brake", "braking_path"]
+__all__ = ["REST_SPEED", "follow_previous", "brake", "braking_path", "park"]
 
 #: Per-axis speed (m/s) below which the robot counts as at rest.
 REST_SPEED = 1e-9
@@ -41,6 +41,16 @@ def follow_previous(
         for k in range(len(shifted.p))
     )
     return Command(float(u[0]), float(u[1]), ControlStatus.FALLBACK, plan, report), shifted
+
+
+def park(obs: Observation, spec: RobotSpec, horizon: int) -> Command:
+    """Stay at rest on the goal without a solve (the optimum there is to stay): the plan says
+    the robot stays for the whole horizon, so others keep clear of it as of a parked robot. A
+    speed left from the solver's tolerances is cancelled within the step."""
+    dt = spec.period
+    end = obs.t + horizon * dt
+    plan = ((obs.t, obs.x, obs.y), (end, obs.x + dt * obs.vx, obs.y + dt * obs.vy))
+    return Command(-obs.vx / dt + 0.0, -obs.vy / dt + 0.0, ControlStatus.OK, plan)
 
 
 def brake(obs: Observation, spec: RobotSpec, horizon: int, status: ControlStatus) -> Command:

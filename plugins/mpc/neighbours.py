@@ -3,13 +3,22 @@
 A robot needs keeping clear of when its predicted square can come within reach of the plan
 (the reachable boxes, narrowed to the regions each step may use) and, with
 ``respect_priority``, it outranks this one wherever it is, and only when parked for the whole
-horizon or close (closer than two robots at full speed need to stop, plus a step each) if this
-one outranks it. The higher one thus keeps its course unless the lower one is close (when
-both yielded at any distance, both swerved alike and met again: measured head-on). A moving
-robot may carry on with its plan or drop it at its next tick (to brake when its solve fails, or
-to re-plan, as this one does at the same time), so the plan keeps clear of the box round both
-its plan and its braking path; only a robot parked for the horizon is a plain square.
-`separation` turns the chosen ones into rows.
+horizon or close (`close`) if this one outranks it. The higher one thus keeps its course unless
+the lower one is close (when both yielded at any distance, both swerved alike and met again:
+measured head-on). A moving robot may carry on with its plan or drop it at its next tick (to
+brake when its solve fails, or to re-plan, as this one does at the same time), so the plan
+keeps clear of the box round both its plan and its braking path; only a robot parked for the
+horizon is a plain square. `separation` turns the chosen ones into rows.
+
+Close means: should both robots keep their course one more tick and then brake, they could
+meet. It is judged from both robots' real velocities and braking paths, not from one distance
+for ``v_max`` along an axis: ``v_max`` bounds each axis, so a robot on a diagonal goes up to
+sqrt(2) times as fast and brakes over up to sqrt(2) times the distance (a higher robot on a
+diagonal kept its course from 4.17 m, thinking 3.7 m enough, and met the lower one:
+tests/test_mpc_contact.py). With a close lower robot, the higher one does not
+re-plan (`must_hold`): the lower one keeps clear of its plan and its braking path, so it only
+follows its plan (while that keeps clear) or brakes; when both re-planned at once, both
+swerved into the same gap.
 """
 
 from __future__ import annotations
@@ -22,7 +31,14 @@ from fleet.plugins import Neighbour, Observation, RobotSpec
 from fleet_plugins.mpc.fallback import braking_path
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
-__all__ = ["robots_to_avoid", "clear_of_neighbours", "closest_approach", "outranks"]
+__all__ = [
+    "robots_to_avoid",
+    "clear_of_neighbours",
+    "closest_approach",
+    "outranks",
+    "close",
+    "must_hold",
+]
 
 
 def robots_to_avoid(
@@ -38,8 +54,6 @@ def robots_to_avoid(
     """The robots of `obs.neighbours` the plan must keep clear of, nearest first (on a tie,
     by robot id); `p_lo`, `p_hi` bound where each point of the plan can be."""
     N, dt = horizon, spec.period
-    # Within this, two robots at full speed could not stop before they met.
-    near = spec.v_max**2 / spec.a_max + 2.0 * spec.v_max * dt
     picked: list[tuple[float, str, Obstacle]] = []
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, N)
@@ -47,8 +61,8 @@ def robots_to_avoid(
         distance = math.hypot(n.x - obs.x, n.y - obs.y)
         ob = Obstacle.square(n.robot, centres, half, margin)
         moving = not at_rest(centres)
-        if respect_priority and moving and outranks(obs, n) and distance >= half + near:
-            continue  # it yields to this robot; this one keeps its course
+        if respect_priority and moving and outranks(obs, n) and not close(obs, n, spec, half):
+            continue  # it yields to this robot (braking if it must); this one keeps its course
         if moving:
             # A moving robot may carry on with its plan, or drop it at its next tick to brake
             # (a failed solve) or to re-plan: keep clear of the box round both, whichever robot
@@ -62,6 +76,80 @@ def robots_to_avoid(
         picked.append((distance, n.robot, ob))
     picked.sort(key=lambda item: (item[0], item[1]))
     return [ob for _, _, ob in picked]
+
+
+def close(obs: Observation, n: Neighbour, spec: RobotSpec, half: float) -> bool:
+    """Whether lower-priority robot `n` is close: should both robots keep their course for one
+    more tick (each at its present velocity, its input then anything within the bound) and only
+    then brake, their centres could come within `half` (between the samples too).
+
+    A robot only sees another at its ticks, hence a tick for this one; the other, at this same
+    tick, may re-plan against this one's last plan (not the one made now) before it brakes,
+    hence a tick for it too (counting only its braking from now, a higher robot sped up towards
+    a lower one that drove on one more tick: tests/test_mpc_contact.py). Braking runs along the
+    line of travel, so a diagonal one runs up to sqrt(2) times as far as one along an axis at
+    the same per-axis speed (`v_max` bounds each axis). `n` is assumed to have this robot's
+    bounds (as for its braking path in `robots_to_avoid`)."""
+    mine = _keep_course_paths(obs.x, obs.y, obs.vx, obs.vy, spec)
+    theirs = _keep_course_paths(n.x, n.y, n.vx, n.vy, spec)
+    # Far apart for any of these paths (each stays within its length of its start): not close.
+    reach = _length(mine) + _length(theirs)
+    if math.hypot(n.x - obs.x, n.y - obs.y) >= half + reach:
+        return False
+    k = max(mine.shape[1], theirs.shape[1])
+    mine = np.concatenate([mine, np.repeat(mine[:, -1:], k - mine.shape[1], 1)], axis=1)
+    theirs = np.concatenate([theirs, np.repeat(theirs[:, -1:], k - theirs.shape[1], 1)], axis=1)
+    # Every pair of paths at once: their offsets (a, b, step, axis), nearest point per step.
+    d = mine[:, None] - theirs[None, :]
+    d0, step = d[:, :, :-1], np.diff(d, axis=2)
+    length2 = np.einsum("abki,abki->abk", step, step)
+    along = np.divide(
+        -np.einsum("abki,abki->abk", d0, step), length2, out=np.zeros_like(length2),
+        where=length2 > 0,
+    )  # fmt: skip
+    nearest = d0 + np.clip(along, 0.0, 1.0)[..., None] * step
+    return bool(np.min(np.hypot(nearest[..., 0], nearest[..., 1])) < half)
+
+
+def _keep_course_paths(x: float, y: float, vx: float, vy: float, spec: RobotSpec) -> np.ndarray:
+    """Positions ``(5, K, 2)`` (from now, one per period, the last repeated) of a robot that
+    keeps its course one tick, with no input or with an input at a corner of the bound, and
+    then brakes along its line of travel until at rest (as `fallback.braking_path`: the
+    fastest axis slows by ``a_max * period`` a period, the other in proportion)."""
+    dt, a = spec.period, spec.a_max
+    corners = np.array([[0.0, 0.0], [a, a], [a, -a], [-a, a], [-a, -a]])
+    w = np.clip(np.array([vx, vy]) + dt * corners, -spec.v_max, spec.v_max)  # after the tick
+    fastest = np.max(np.abs(w), axis=1)
+    periods = int(np.ceil(np.max(fastest) / (a * dt) - 1e-12)) if np.max(fastest) > 0 else 0
+    # The fastest axis's speed in each braking period, and the fraction of w it is.
+    speeds = np.clip(fastest[:, None] - a * dt * np.arange(periods), 0.0, None)
+    top = fastest[:, None]
+    share = np.divide(speeds, top, out=np.zeros_like(speeds), where=top > 0)
+    travel = dt * np.cumsum(share[:, :, None] * w[:, None, :], axis=1)
+    start = np.array([x, y])
+    after = start + dt * np.array([vx, vy])  # the next position does not depend on the input
+    return np.concatenate(
+        [np.tile(start, (5, 1, 1)), np.tile(after, (5, 1, 1)), after + travel], axis=1
+    )
+
+
+def _length(paths: np.ndarray) -> float:
+    """The longest of `paths` ``(P, K, 2)``, along its steps."""
+    steps = np.diff(paths, axis=1)
+    return float(np.max(np.sum(np.hypot(steps[..., 0], steps[..., 1]), axis=1)))
+
+
+def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
+    """Whether a moving robot that this one outranks is `close` (their centres could come
+    within ``r_i + r_j + margin``). Such a robot relies on this one's published plan or
+    braking path: this one then only follows its plan (while `reuse.clear_of_all`) or brakes,
+    it does not re-plan."""
+    for n in obs.neighbours:
+        if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
+            continue
+        if close(obs, n, spec, spec.radius + float(n.radius) + margin):
+            return True
+    return False
 
 
 def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:
