@@ -15,7 +15,7 @@ from shapely.geometry import LineString, Point, box
 
 from fleet.engine import World
 from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M, MakeWay
-from fleet.scenario import load_scenario
+from fleet.scenario import load_scenario, sensing_needed
 
 CASE = Path(__file__).resolve().parent / "cases" / "via_parked_robot"
 
@@ -118,7 +118,10 @@ def test_the_idle_robot_holds_its_spot_until_the_stuck_robot_moves_on(world: Wor
 def world3() -> World:
     # At a period of 0.8 s the step a robot may take unseen is 0.45 m: the gaps are wider.
     sc = load_scenario(CASE / "scen.toml")
-    w = World(replace(sc, robots=(replace(sc.robots[0], count=3, period_s=0.8),)))
+    group = replace(sc.robots[0], count=3, period_s=0.8)
+    # Robots that see each other far enough to stop for each other (check_fleet's rule).
+    sensing = math.ceil(sensing_needed(group, group) * 10) / 10
+    w = World(replace(sc, robots=(group,), sensing_radius_m=sensing))
     yield w
     w._close_bus()
 
