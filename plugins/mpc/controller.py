@@ -32,7 +32,12 @@ from fleet.plugins import (
 from fleet_plugins.mpc.fallback import brake, follow_previous, park
 from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
-from fleet_plugins.mpc.neighbours import clear_of_neighbours, must_hold, robots_to_avoid
+from fleet_plugins.mpc.neighbours import (
+    brake_runs_into,
+    clear_of_neighbours,
+    must_hold,
+    robots_to_avoid,
+)
 from fleet_plugins.mpc.options import check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, shifted, within_caps
@@ -243,7 +248,9 @@ class MPCController(Controller):
         hold = hold and must_hold(obs, spec, self.horizon, self.separation_margin_m)
         if self._reusable(obs, hold):
             return self._reuse(obs)
-        if hold:  # a close lower robot relies on this one's plan or braking path: no solve
+        # A close lower robot relies on this one's plan or braking path: no solve, unless the
+        # braking path runs into a robot standing still (it may be held too, and not give way).
+        if hold and not brake_runs_into(obs, spec, self.horizon):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK)
         self._reused = 0

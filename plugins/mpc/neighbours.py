@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from fleet.plugins import Neighbour, Observation, RobotSpec
-from fleet_plugins.mpc.fallback import braking_path
+from fleet_plugins.mpc.fallback import REST_SPEED, braking_path
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
 __all__ = [
@@ -38,6 +38,7 @@ __all__ = [
     "outranks",
     "close",
     "must_hold",
+    "brake_runs_into",
 ]
 
 
@@ -148,6 +149,24 @@ def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) ->
         if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
             continue
         if close(obs, n, spec, spec.radius + float(n.radius) + margin):
+            return True
+    return False
+
+
+def brake_runs_into(obs: Observation, spec: RobotSpec, horizon: int) -> bool:
+    """Whether braking along the line of travel would bring this robot into contact with a
+    neighbour predicted at rest for the horizon, between the samples too. Such a robot may be
+    held itself (`must_hold`: it only brakes, at rest it stays) and never give way, so a held
+    robot solves instead (40 MPC robots on the fleet scenario: a higher robot whose plan curved
+    round a robot held at rest braked straight on into it; tests/test_mpc_contact.py)."""
+    if max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED:
+        return False
+    dt = spec.period
+    stop = np.array(braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, spec.a_max, horizon))
+    p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])
+    for n in obs.neighbours:
+        centres = predict(n, obs.t, dt, horizon)
+        if at_rest(centres) and closest_approach(p, centres) < spec.radius + float(n.radius):
             return True
     return False
 
