@@ -92,7 +92,8 @@ class MPCController(Controller):
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
     on a tie, the smaller robot id), and of the robots it outranks only when they are parked
     for the whole horizon or close (`neighbours` says why); with a moving lower robot close it
-    does not solve but follows its previous plan while that keeps clear, else brakes. A moving
+    does not solve but follows its previous plan while that keeps clear, else brakes (unless
+    braking runs into a robot standing still: then it solves). A moving
     robot's square covers both its plan and its braking path (it may drop its plan at its next
     tick). At most ``max_neighbours`` robots, the nearest, are constrained.
 

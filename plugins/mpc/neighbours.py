@@ -18,7 +18,8 @@ diagonal kept its course from 4.17 m, thinking 3.7 m enough, and met the lower o
 tests/test_mpc_contact.py). With a close lower robot, the higher one does not
 re-plan (`must_hold`): the lower one keeps clear of its plan and its braking path, so it only
 follows its plan (while that keeps clear) or brakes; when both re-planned at once, both
-swerved into the same gap.
+swerved into the same gap. It re-plans after all when its braking path runs into a robot
+standing still (`brake_runs_into`): that one may be held too, and never give way.
 """
 
 from __future__ import annotations
