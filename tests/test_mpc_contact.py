@@ -31,16 +31,20 @@ from shapely.geometry import box
 from fleet.engine import World
 from fleet.floor import Floor, FloorSpec, Obstacle, SpeedZone, Station, compile_floor
 from fleet.paths import PathPlanner
-from fleet.plugins import Neighbour, Observation, RobotSpec
+from fleet.plugins import ControllerContext, ControlStatus, Neighbour, Observation, RobotSpec
 from fleet.scenario import (
+    REPO_ROOT,
     JobsConfig,
     PluginChoice,
     RobotsConfig,
     Scenario,
     ScriptedJob,
+    load_scenario,
     sensing_needed,
 )
+from fleet_plugins.mpc.controller import MPCController
 from fleet_plugins.mpc.neighbours import (
+    brake_runs_into,
     clear_of_neighbours,
     close,
     closest_approach,
@@ -527,3 +531,37 @@ def test_mpc_robots_on_a_diagonal_at_the_rules_sensing_never_touch() -> None:
     assert summary["violations"]["collision"] == 0
     assert closest >= 2 * RADIUS
     assert summary["jobs"]["completed"] == 2  # not vacuous: both drove past each other
+
+
+def test_a_held_mpc_robot_never_brakes_into_a_robot_standing_still() -> None:
+    # 40 MPC robots on the fleet scenario (scripts/bench_fleet.py --sweep 40, t = 60.5 s): r35
+    # (priority 46) heads for paint_booth_in at (1.0, 0.2) m/s, its plan curving below r37,
+    # which stands still (held itself by r39, lower and close). r39 being close, r35 held: its
+    # plan failed the hold's box check, so it braked along its line of travel, straight into r37
+    # (0.746 m apart at rest, radii 0.4), which never moved away: contact at 62.0 s. The
+    # observation as the engine made it; a real controller on the real floor.
+    scenario = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
+    floor = World(scenario).floor
+    spec = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
+    r37 = Neighbour("r37", 32.41145639280674, 38.0476892495882, 0.0, 0.0, 0.4, 44,
+                    ((60.5, 32.41145639280674, 38.0476892495882),))  # fmt: skip
+    r15 = Neighbour("r15", 29.698552263669768, 36.39140640054973, 1.0, 0.5132003941208425, 0.4,
+                    66, ((60.5, 29.698552263669768, 36.39140640054973),
+                         (62.75, 31.948552263669747, 37.14768924958822),
+                         (64.75, 33.0, 37.147689249588204)))  # fmt: skip
+    r39 = Neighbour("r39", 33.31145639280669, 38.04446096484635, 0.0, 0.15746188797524496, 0.4,
+                    42, ((60.5, 33.31145639280669, 38.04961961458045),
+                         (61.75, 33.31145639280671, 38.23216465443828),
+                         (62.75, 33.311456392806726, 38.26747915225139)))  # fmt: skip
+    obs = Observation("r35", 242, 60.5, 31.34760304210503, 37.078749478386186,
+                      0.9948627271932793, 0.20037954240403621, goal=(33.0, 38.0), job="j00031",
+                      neighbours=(r37, r15, r39), priority=46)  # fmt: skip
+    assert must_hold(obs, spec, 25, 0.1)  # r39 is close: r35 holds
+    assert brake_runs_into(obs, spec, 25)  # and its braking path runs into r37
+    assert not brake_runs_into(replace(obs, neighbours=(r15, r39)), spec, 25)
+    controller = MPCController()
+    controller.reset(ControllerContext("r35", spec, floor, PathPlanner(floor, 1.0, 0.5)))
+    cmd = controller.compute(obs)
+    assert cmd.status is ControlStatus.OK and cmd.solve is not None  # it solved, not braked
+    plan = np.array([s[1:] for s in cmd.plan])
+    assert closest_approach(plan, np.tile([r37.x, r37.y], (len(plan), 1))) >= 0.8 - 1e-9

@@ -32,7 +32,12 @@ from fleet.plugins import (
 from fleet_plugins.mpc.fallback import brake, follow_previous, park
 from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
-from fleet_plugins.mpc.neighbours import clear_of_neighbours, must_hold, robots_to_avoid
+from fleet_plugins.mpc.neighbours import (
+    brake_runs_into,
+    clear_of_neighbours,
+    must_hold,
+    robots_to_avoid,
+)
 from fleet_plugins.mpc.options import check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, shifted, within_caps
@@ -87,7 +92,8 @@ class MPCController(Controller):
     ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
     on a tie, the smaller robot id), and of the robots it outranks only when they are parked
     for the whole horizon or close (`neighbours` says why); with a moving lower robot close it
-    does not solve but follows its previous plan while that keeps clear, else brakes. A moving
+    does not solve but follows its previous plan while that keeps clear, else brakes (unless
+    braking runs into a robot standing still: then it solves). A moving
     robot's square covers both its plan and its braking path (it may drop its plan at its next
     tick). At most ``max_neighbours`` robots, the nearest, are constrained.
 
@@ -243,7 +249,9 @@ class MPCController(Controller):
         hold = hold and must_hold(obs, spec, self.horizon, self.separation_margin_m)
         if self._reusable(obs, hold):
             return self._reuse(obs)
-        if hold:  # a close lower robot relies on this one's plan or braking path: no solve
+        # A close lower robot relies on this one's plan or braking path: no solve, unless the
+        # braking path runs into a robot standing still (it may be held too, and not give way).
+        if hold and not brake_runs_into(obs, spec, self.horizon):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK)
         self._reused = 0

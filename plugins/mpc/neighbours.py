@@ -18,7 +18,8 @@ diagonal kept its course from 4.17 m, thinking 3.7 m enough, and met the lower o
 tests/test_mpc_contact.py). With a close lower robot, the higher one does not
 re-plan (`must_hold`): the lower one keeps clear of its plan and its braking path, so it only
 follows its plan (while that keeps clear) or brakes; when both re-planned at once, both
-swerved into the same gap.
+swerved into the same gap. It re-plans after all when its braking path runs into a robot
+standing still (`brake_runs_into`): that one may be held too, and never give way.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import math
 import numpy as np
 
 from fleet.plugins import Neighbour, Observation, RobotSpec
-from fleet_plugins.mpc.fallback import braking_path
+from fleet_plugins.mpc.fallback import REST_SPEED, braking_path
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "outranks",
     "close",
     "must_hold",
+    "brake_runs_into",
 ]
 
 
@@ -148,6 +150,24 @@ def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) ->
         if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
             continue
         if close(obs, n, spec, spec.radius + float(n.radius) + margin):
+            return True
+    return False
+
+
+def brake_runs_into(obs: Observation, spec: RobotSpec, horizon: int) -> bool:
+    """Whether braking along the line of travel would bring this robot into contact with a
+    neighbour predicted at rest for the horizon, between the samples too. Such a robot may be
+    held itself (`must_hold`: it only brakes, at rest it stays) and never give way, so a held
+    robot solves instead (40 MPC robots on the fleet scenario: a higher robot whose plan curved
+    round a robot held at rest braked straight on into it; tests/test_mpc_contact.py)."""
+    if max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED:
+        return False
+    dt = spec.period
+    stop = np.array(braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, spec.a_max, horizon))
+    p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])
+    for n in obs.neighbours:
+        centres = predict(n, obs.t, dt, horizon)
+        if at_rest(centres) and closest_approach(p, centres) < spec.radius + float(n.radius):
             return True
     return False
 
