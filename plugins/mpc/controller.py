@@ -29,7 +29,7 @@ from fleet.plugins import (
     SolveReport,
     SolverOutcome,
 )
-from fleet_plugins.mpc.fallback import brake, follow_previous, park
+from fleet_plugins.mpc.fallback import brake, follow_previous, park, plan_points, shifted
 from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
 from fleet_plugins.mpc.neighbours import (
@@ -40,7 +40,7 @@ from fleet_plugins.mpc.neighbours import (
 )
 from fleet_plugins.mpc.options import check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
-from fleet_plugins.mpc.reuse import clear_of_all, shifted, within_caps
+from fleet_plugins.mpc.reuse import clear_of_all, within_caps
 from fleet_plugins.mpc.separation import Separation, build_separation, spans
 from fleet_plugins.mpc.trip import Trip
 
@@ -273,11 +273,7 @@ class MPCController(Controller):
         if solution.outcome.usable:
             assert solution.p is not None and solution.u is not None
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
-            dt = spec.period
-            plan = tuple(
-                (obs.t + k * dt, float(solution.p[k, 0]), float(solution.p[k, 1]))
-                for k in range(len(solution.p))
-            )
+            plan = plan_points(obs.t, solution.p, spec.period)
             u = solution.u[0]
             return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
         return self._fallback(obs, report)
@@ -313,10 +309,7 @@ class MPCController(Controller):
         self.reuses += 1
         last = self._last
         assert last.p is not None and last.u is not None
-        dt = self.context.spec.period
-        plan = tuple(
-            (obs.t + k * dt, float(last.p[k, 0]), float(last.p[k, 1])) for k in range(len(last.p))
-        )
+        plan = plan_points(obs.t, last.p, self.context.spec.period)
         return Command(float(last.u[0, 0]), float(last.u[0, 1]), ControlStatus.OK, plan)
 
     def _refine(self, milp: Solution, data: StepData, separation: Separation | None) -> Solution:

@@ -14,7 +14,15 @@ from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveR
 from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet_plugins.mpc.model import Solution
 
-__all__ = ["REST_SPEED", "follow_previous", "brake", "braking_path", "park"]
+__all__ = [
+    "REST_SPEED",
+    "follow_previous",
+    "shifted",
+    "plan_points",
+    "brake",
+    "braking_path",
+    "park",
+]
 
 #: Per-axis speed (m/s) below which the robot counts as at rest.
 REST_SPEED = 1e-9
@@ -25,22 +33,32 @@ def follow_previous(
 ) -> tuple[Command, Solution]:
     """The previous plan's next input, as a FALLBACK command whose plan is the rest of it;
     and that plan moved one step on, to be followed again should the next solve fail too."""
+    assert last.u is not None
+    later = shifted(last)
+    assert later.p is not None
+    u = last.u[1]
+    plan = plan_points(obs.t, later.p, dt)
+    return Command(float(u[0]), float(u[1]), ControlStatus.FALLBACK, plan, report), later
+
+
+def shifted(last: Solution) -> Solution:
+    """`last` moved one step on: its last point repeated, at rest (no input)."""
     assert last.p is not None and last.v is not None
     assert last.u is not None and last.regions is not None
-    shifted = Solution(
+    return Solution(
         last.outcome,
         last.solver_s,
         p=np.vstack([last.p[1:], last.p[-1:]]),
         v=np.vstack([last.v[1:], np.zeros((1, 2))]),
         u=np.vstack([last.u[1:], np.zeros((1, 2))]),
         regions=np.concatenate([last.regions[1:], last.regions[-1:]]),
+        objective=last.objective,
     )
-    u = last.u[1]
-    plan = tuple(
-        (obs.t + k * dt, float(shifted.p[k, 0]), float(shifted.p[k, 1]))
-        for k in range(len(shifted.p))
-    )
-    return Command(float(u[0]), float(u[1]), ControlStatus.FALLBACK, plan, report), shifted
+
+
+def plan_points(t: float, p: np.ndarray, dt: float) -> tuple[tuple[float, float, float], ...]:
+    """A plan's positions `p` (one per step from `t`) as a command's plan: (t, x, y) each."""
+    return tuple((t + k * dt, float(p[k, 0]), float(p[k, 1])) for k in range(len(p)))
 
 
 def park(obs: Observation, spec: RobotSpec, horizon: int) -> Command:

@@ -17,29 +17,12 @@ import numpy as np
 from fleet.plugins import Observation, RobotSpec
 from fleet.printing import CapSchedule
 from fleet_plugins.mpc.fallback import braking_path
-from fleet_plugins.mpc.model import Solution
 from fleet_plugins.mpc.separation import predict
 
-__all__ = ["shifted", "within_caps", "clear_of_all"]
+__all__ = ["within_caps", "clear_of_all"]
 
 #: Tolerance (m/s) of the cap check (the solves' feasibility tolerance is 1e-9).
 _CAP_TOL = 1e-9
-
-
-def shifted(last: Solution) -> Solution:
-    """`last` moved one step on: its last point repeated, at rest (no input)."""
-    assert last.p is not None and last.v is not None
-    assert last.u is not None and last.regions is not None
-    return Solution(
-        last.outcome,
-        0.0,
-        p=np.vstack([last.p[1:], last.p[-1:]]),
-        v=np.vstack([last.v[1:], np.zeros((1, 2))]),
-        u=np.vstack([last.u[1:], np.zeros((1, 2))]),
-        regions=np.concatenate([last.regions[1:], last.regions[-1:]]),
-        columns=None,
-        objective=last.objective,
-    )
 
 
 def within_caps(obs: Observation, spec: RobotSpec, v: np.ndarray) -> bool:
