@@ -14,6 +14,7 @@ from shapely import affinity
 from shapely.geometry import LineString, Point, Polygon, box
 
 import fleet.paths.timing as timing
+from fleet.engine.safety import check_steps
 from fleet.errors import MapError, NoPathError
 from fleet.floor import (
     Floor,
@@ -276,6 +277,22 @@ def test_driving_along_a_zone_boundary_obeys_the_zone():
     assert ref.path.waypoints.tolist() == [[8, 0.2], [8, 1.8]]
     assert ref.path.travel_time == pytest.approx(1.6 / 0.3)
     assert_valid(floor, ref, (8, 0.2), (8, 1.8))
+
+
+@pytest.mark.parametrize("off", [3e-7, 9e-7, 0.0])
+def test_a_leg_converging_onto_a_zone_boundary_obeys_the_zone(off):
+    """A robot stopped a rounding error outside a slow zone (here 0.3 m/s) that drives along its
+    boundary: the safety checker binds a step that enters no region deeper than its tolerance by
+    both sides, so the planner must slow the leg down, although the leg never enters the zone."""
+    floor = floor_of(
+        "sides", [(box(0, 0, 4, 10), (1.0, 1.0), None), (box(4, 0, 10, 10), (0.3, 0.3), "slow")]
+    )
+    planner = PathPlanner(floor)
+    start, goal = (4 - off, 1.0), (4.0, 9.0)
+    assert planner.speed_limit(start, goal) == (0.3, 0.3)
+    assert planner.speed_limit((3.0, 1.0), goal) == (1.0, 1.0)  # crossing the band at an angle
+    ref = planner.reference(start, goal, dt=0.25)
+    assert check_steps(floor, ref.times, ref.positions, ref.velocities) == []
 
 
 def test_stop_and_go_fallback_is_valid_too(monkeypatch):

@@ -26,7 +26,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from fleet.floor import Floor
+from fleet.floor import BOUNDARY_BAND, Floor
 from fleet.printing import CapSchedule
 
 __all__ = [
@@ -38,8 +38,9 @@ __all__ = [
     "SafetyChecker",
 ]
 
-#: Length (m) of leaving the free space below which rounding is forgiven.
-LENGTH_TOL = 1e-6
+#: Length (m) of leaving the free space below which rounding is forgiven, and the depth a step
+#: must reach inside a region to be bound by it alone (the planner's band, so the two agree).
+LENGTH_TOL = BOUNDARY_BAND
 #: Speed (m/s) above a limit below which rounding is forgiven.
 SPEED_TOL = 1e-6
 

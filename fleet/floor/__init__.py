@@ -7,13 +7,14 @@ H-representation and their adjacency graph. This room imports only `fleet.errors
 """
 
 from fleet.floor.build import compile_floor, load_floor, slow_on_rough
-from fleet.floor.compiled import Floor, Region, halfspaces
+from fleet.floor.compiled import BOUNDARY_BAND, Floor, Region, halfspaces
 from fleet.floor.decompose import convex_pieces
 from fleet.floor.mapfile import load_spec, parse_spec
 from fleet.floor.mapspec import MapFile
 from fleet.floor.spec import FloorSpec, Obstacle, RoughArea, SpeedZone, Station
 
 __all__ = [
+    "BOUNDARY_BAND",
     "Floor",
     "Region",
     "halfspaces",

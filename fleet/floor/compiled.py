@@ -19,10 +19,15 @@ from shapely.strtree import STRtree
 
 from fleet.floor.spec import FloorSpec, Station
 
-__all__ = ["Region", "Floor", "halfspaces"]
+__all__ = ["Region", "Floor", "halfspaces", "BOUNDARY_BAND"]
 
 #: Geometric tolerance (m) for membership and shared-edge tests.
 TOLERANCE = 1e-7
+#: Distance (m) from a region's boundary within which a point counts as on it when deciding
+#: which zone speed limits bind: the safety checker's depth (`fleet.engine.safety`) and the
+#: band in which a planned leg is bound by the region beside it (`fleet.paths.limits`). A leg
+#: that runs along a shared boundary is then bound by both sides, as the checker judges it.
+BOUNDARY_BAND = 1e-6
 
 
 @dataclass(frozen=True, eq=False)

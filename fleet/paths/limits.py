@@ -2,14 +2,18 @@
 
 The floor's convex regions are held in H-representation (``A x <= b``) and segments are clipped
 against them (Cyrus-Beck), vectorised over many segments at once. A segment's limit is the
-component-wise minimum of the per-axis limits of every region it overlaps with positive length
-and of the robot's own limit; a segment that leaves the free space has none.
+component-wise minimum of the per-axis limits of every region it overlaps with positive length,
+and of the robot's own limit; a segment that leaves the free space has none. A segment that
+runs along a region's boundary (within `fleet.floor.BOUNDARY_BAND` of it for more than
+`ALONG_M`) is bound by that region too over that stretch, even from just outside it: the safety
+checker binds a step that enters no region deeper than the band by the regions on both sides.
 """
 
 from __future__ import annotations
 
 __all__ = [
     "GAP_TOL",
+    "ALONG_M",
     "ON_LINE_TOL",
     "OVERLAP_TOL",
     "SpeedLimits",
@@ -22,8 +26,8 @@ import math
 
 import numpy as np
 
+from fleet.floor.compiled import BOUNDARY_BAND, Floor
 from fleet.floor.compiled import TOLERANCE as FLOOR_TOLERANCE
-from fleet.floor.compiled import Floor
 
 #: A segment overlaps a region when they share more than this length (m); less is a point touch.
 OVERLAP_TOL = 1e-9
@@ -31,6 +35,10 @@ OVERLAP_TOL = 1e-9
 GAP_TOL = 1e-6
 #: Distance (m) within which a point counts as lying on a region's boundary line.
 ON_LINE_TOL = 1e-9
+#: Length (m) a segment must run within `BOUNDARY_BAND` of a region, beyond what it overlaps
+#: it, to be bound by it there: a leg running along the boundary, not one crossing it or
+#: touching a corner (those come within the band for ``2 * BOUNDARY_BAND / sin(angle)``).
+ALONG_M = 1e-3
 
 _PARALLEL = 1e-12  # |cos| below which a segment runs parallel to a boundary line
 #: Leg times `SpeedLimits.segment_time` keeps (about 100 bytes each); when full it forgets
@@ -78,10 +86,17 @@ class SpeedLimits:
         lo > hi), ``contains`` (n, m): whether that region holds the start point, and ``sel``
         (m,): the regions whose bounding box meets the segments' (the others cannot overlap).
         """
+        L, u, lo, hi, contains, sel, _, _ = self._clip(P, Q, 0.0)
+        return L, u, lo, hi, contains, sel
+
+    def _clip(self, P: np.ndarray, Q: np.ndarray, band: float) -> tuple[np.ndarray, ...]:
+        """`clip`, and with `band` > 0 also ``lo, hi`` of the regions grown by `band` metres
+        (the rows of ``A`` are unit normals), in the same pass; ``sel`` then takes in the
+        regions within `band` too."""
         d = Q - P
         L = np.hypot(d[:, 0], d[:, 1])
         u = d / np.where(L > 0, L, 1.0)[:, None]
-        pad = FLOOR_TOLERANCE
+        pad = FLOOR_TOLERANCE + band
         lo_xy = np.minimum(P.min(axis=0), Q.min(axis=0)) - pad
         hi_xy = np.maximum(P.max(axis=0), Q.max(axis=0)) + pad
         box = self._bbox
@@ -94,27 +109,48 @@ class SpeedLimits:
         n = len(L)
         if len(sel) == 0:
             empty = np.zeros((n, 0))
-            return L, u, empty, empty, empty.astype(bool), sel
+            return L, u, empty, empty, empty.astype(bool), sel, empty, empty
         rows = np.concatenate([self._rows[i] for i in sel])
         offsets = np.concatenate([[0], np.cumsum(self._counts[sel])[:-1]]).astype(np.intp)
         A, b = self._A[rows], self._b[rows]
         num = b[None, :] - P @ A.T
         den = u @ A.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bound = num / den
         par = np.abs(den) <= _PARALLEL
-        upper = np.where(den > _PARALLEL, bound, np.inf)
-        lower = np.where(den < -_PARALLEL, bound, -np.inf)
-        # Running along (or outside) a boundary line: the whole segment is in or out of it.
-        upper = np.where(par & (num < -ON_LINE_TOL), -np.inf, upper)
-        hi = np.minimum(np.minimum.reduceat(upper, offsets, axis=1), L[:, None])
-        lo = np.maximum(np.maximum.reduceat(lower, offsets, axis=1), 0.0)
+        ahead = den > _PARALLEL
+        behind = den < -_PARALLEL
+
+        def overlaps(num: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                bound = num / den
+            upper = np.where(ahead, bound, np.inf)
+            lower = np.where(behind, bound, -np.inf)
+            # Running along (or outside) a boundary line: the whole segment is in or out of it.
+            upper = np.where(par & (num < -ON_LINE_TOL), -np.inf, upper)
+            hi = np.minimum(np.minimum.reduceat(upper, offsets, axis=1), L[:, None])
+            lo = np.maximum(np.maximum.reduceat(lower, offsets, axis=1), 0.0)
+            return lo, hi
+
+        lo, hi = overlaps(num)
         contains = np.logical_and.reduceat(num >= -FLOOR_TOLERANCE, offsets, axis=1)
-        return L, u, lo, hi, contains, sel
+        # Only a segment nearly parallel to a boundary line (it is in the band for at most
+        # 2 * band / |den| metres) that comes within the band of it, outside, can run along it
+        # for `ALONG_M`: most calls have none and skip the second pass.
+        num_q = num - L[:, None] * den
+        if band > 0 and np.any(
+            (np.abs(den) * ALONG_M < 2.0 * band)
+            & (np.maximum(num, num_q) >= -band)
+            & (np.minimum(num, num_q) <= 0.0)
+        ):
+            lo_b, hi_b = overlaps(num + band)
+        else:
+            lo_b, hi_b = lo, hi
+        return L, u, lo, hi, contains, sel, lo_b, hi_b
 
     def of_segments(self, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Vectorised `PathPlanner.speed_limit`: limits (n, 2) and whether each segment is free."""
-        L, _, lo, hi, contains, sel = self.clip(P, Q)
+        L, _, lo, hi, contains, sel, lo_b, hi_b = self._clip(P, Q, BOUNDARY_BAND)
+        free = self._covered(L, lo, hi, contains)
+        lo, hi = _binding(lo, hi, lo_b, hi_b)
         point = L <= OVERLAP_TOL
         over = (hi - lo) > OVERLAP_TOL
         use = np.where(point[:, None], contains, over)
@@ -122,7 +158,7 @@ class SpeedLimits:
             axis=1, initial=np.inf
         )
         lim = np.minimum(lim, self.v_max)
-        return lim, self._covered(L, lo, hi, contains)
+        return lim, free
 
     def _covered(self, L, lo, hi, contains) -> np.ndarray:
         """Whether each clipped segment stays in the free space (no gap over `GAP_TOL`)."""
@@ -146,13 +182,16 @@ class SpeedLimits:
     ) -> list[tuple[float, float, np.ndarray]] | None:
         """Split ``p -> q`` where its speed limit changes: ``[(from_m, to_m, (vx, vy)), ...]``.
 
-        Each stretch's limit is the minimum over the regions it overlaps with positive length,
-        so any sub-segment of a stretch obeys it. None if the segment leaves the free space.
+        Each stretch's limit is the minimum over the regions it overlaps with positive length
+        or runs along (see the module docstring), so any sub-segment of a stretch obeys it.
+        None if the segment leaves the free space.
         """
-        L, _, lo, hi, _, sel = self.clip(p[None, :], q[None, :])
-        L, lo, hi = float(L[0]), lo[0], hi[0]
+        L, _, lo, hi, _, sel, lo_b, hi_b = self._clip(p[None, :], q[None, :], BOUNDARY_BAND)
+        lo_b, hi_b = _binding(lo, hi, lo_b, hi_b)
+        L, lo, hi, lo_b, hi_b = float(L[0]), lo[0], hi[0], lo_b[0], hi_b[0]
         over = np.flatnonzero((hi - lo) > OVERLAP_TOL)
-        cuts = np.sort(np.concatenate([[0.0, L], lo[over], hi[over]]))
+        near = np.flatnonzero((hi_b - lo_b) > OVERLAP_TOL)
+        cuts = np.sort(np.concatenate([[0.0, L], lo[over], hi[over], lo_b[near], hi_b[near]]))
         kept = [0.0]
         for c in cuts[1:]:
             if c - kept[-1] > OVERLAP_TOL:
@@ -168,7 +207,8 @@ class SpeedLimits:
                 if out:
                     out[-1] = (out[-1][0], b, out[-1][2])
                 continue
-            lim = np.minimum(self.per_region[sel[cover]].min(axis=0), self.v_max)
+            bound = near[(lo_b[near] < b - OVERLAP_TOL) & (hi_b[near] > a + OVERLAP_TOL)]
+            lim = np.minimum(self.per_region[sel[bound]].min(axis=0), self.v_max)
             if out and np.array_equal(out[-1][2], lim):
                 out[-1] = (out[-1][0], b, lim)
             else:
@@ -229,6 +269,16 @@ class SpeedLimits:
             )
         t = (over / speed.min(axis=2)).sum(axis=1)
         return t, self._covered(L, lo, hi, contains)
+
+
+def _binding(
+    lo: np.ndarray, hi: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each region binds each segment: its overlap ``[lo, hi]``, or, where the segment
+    runs along its boundary (within the band for `ALONG_M` more than it overlaps it), its
+    overlap with the region grown by the band ``[lo_b, hi_b]``."""
+    along = (hi_b - lo_b) - np.maximum(hi - lo, 0.0) > ALONG_M
+    return np.where(along, lo_b, lo), np.where(along, hi_b, hi)
 
 
 def speed_along(lim: np.ndarray, u: np.ndarray) -> float:
