@@ -405,6 +405,46 @@ def test_station_to_station_references_on_shipped_maps(name):
         assert ref.path.length >= math.dist(start, goal) - 1e-9
 
 
+def test_estimate_time_is_the_graph_time_an_upper_bound_close_to_the_path():
+    """Bids and the greedy dispatcher rank by `estimate_time`: from anywhere to a station, never
+    below the refined path's time, and close to it."""
+    from fleet.floor import load_floor
+
+    floor = load_floor(MAPS / "shop_floor.toml")
+    planner = PathPlanner(floor, v_max=1.0, a_max=0.5)
+    rng = np.random.default_rng(5)
+    x0, y0, x1, y1 = floor.free_space.bounds
+    starts = []
+    while len(starts) < 25:
+        p = (float(rng.uniform(x0, x1)), float(rng.uniform(y0, y1)))
+        if floor.is_free(*p):
+            starts.append(p)
+    ratios = []
+    for start in starts:
+        for s in floor.spec.stations[:4]:
+            exact = planner.travel_time(start, (s.x, s.y))
+            estimate = planner.estimate_time(start, (s.x, s.y))
+            assert estimate >= exact - 1e-9
+            ratios.append(estimate / exact if exact > 0 else 1.0)
+    assert np.median(ratios) < 1.02 and max(ratios) < 1.25
+    # A straight leg inside one region is the exact time, cached table or not.
+    corridor_planner = PathPlanner(corridor(slow=None))
+    assert corridor_planner.estimate_time((1, 1), (19, 1)) == pytest.approx(18.0)
+    assert corridor_planner.estimate_time((1, 1), (19, 1)) == corridor_planner.travel_time(
+        (1, 1), (19, 1)
+    )
+
+
+def test_estimate_time_refuses_what_path_refuses():
+    planner = PathPlanner(two_rooms())
+    with pytest.raises(NoPathError, match="no route"):
+        planner.estimate_time((2, 2), (8, 2))
+    with pytest.raises(NoPathError, match=r"goal \(5, 5\) is outside the free space"):
+        PathPlanner(hall()).estimate_time((1, 1), (5, 5))
+    with pytest.raises(NoPathError, match=r"start \(-3, 1\) is outside the free space"):
+        PathPlanner(hall()).estimate_time((-3, 1), (1, 1))
+
+
 def test_paper_case3_route_is_found():
     from fleet.floor import load_floor
 

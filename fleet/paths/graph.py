@@ -10,6 +10,7 @@ from __future__ import annotations
 
 __all__ = ["XY", "PortalGraph"]
 
+import heapq
 import math
 import threading
 
@@ -117,6 +118,57 @@ class PortalGraph:
                 raise FleetError(f"path leg {a} -> {b} leaves the free space (bug)")
             total += t
         return make_path(np.asarray(pts), total)
+
+    def cost_to_go(self, goal: XY) -> dict[int, float]:
+        """Each graph node's fastest time to `goal` over the graph (Dijkstra from the goal's
+        links; the graph's times are the same both ways). Nodes that cannot reach it are left out.
+
+        Raises
+        ------
+        NoPathError
+            When the goal is outside the free space.
+        """
+        rg = self._regions_at(goal, "goal", goal, goal)
+        g = np.asarray(goal, dtype=float)
+        best: dict[int, float] = {}
+        heap = [(w, n) for n, w in self._links(g, rg)]
+        heapq.heapify(heap)
+        with self._lock:  # `_search` adds and removes its start and goal under it
+            adj = self._graph.adj
+            while heap:
+                t, n = heapq.heappop(heap)
+                if n in best:
+                    continue
+                best[n] = t
+                for m, edge in adj[n].items():
+                    if m not in best:
+                        heapq.heappush(heap, (t + edge["weight"], m))
+        return best
+
+    def estimate_time(self, start: XY, goal: XY, to_goal: dict[int, float]) -> float:
+        """The fastest time from `start` to `goal` over the graph, `to_goal` being
+        ``cost_to_go(goal)``: what the search finds before string pulling and sliding, which
+        only shorten it.
+
+        Raises
+        ------
+        NoPathError
+            As `find_path`.
+        """
+        rs = self._regions_at(start, "start", start, goal)
+        s, g = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+        direct = self._limits.segment_time(s, g)
+        best = math.inf if direct is None else direct
+        for n, w in self._links(s, rs):
+            best = min(best, w + to_goal.get(n, math.inf))
+        if not math.isfinite(best):
+            raise NoPathError(
+                start,
+                goal,
+                f"no route through the portals of floor {self.floor.name!r} "
+                f"({self.floor.source}) joins them",
+            )
+        return best
 
     def _portal_offsets(self, length: float) -> np.ndarray:
         """Node positions (m from one end) on a portal: its inset ends, its midpoint and evenly

@@ -27,6 +27,8 @@ from fleet.paths.timing import Timing
 
 #: Decimals kept of start and goal; planning uses the rounded points, so the cache is exact.
 KEY_DECIMALS = 9
+#: Goals whose cost-to-go `PathPlanner.estimate_time` keeps.
+TO_GOAL_CACHE = 64
 
 
 class CacheInfo(NamedTuple):
@@ -90,6 +92,10 @@ class PathPlanner:
         self._timing = Timing(self._limits, self.a_max)
         self._path_cached = functools.lru_cache(maxsize=cache_size)(self._portal_graph.find_path)
         self._ref_cached = functools.lru_cache(maxsize=cache_size)(self._plan_reference)
+        # A few kB each (a time per graph node): goals asked about are mostly stations.
+        self._to_goal_cached = functools.lru_cache(maxsize=TO_GOAL_CACHE)(
+            self._portal_graph.cost_to_go
+        )
 
     # -- public queries -----------------------------------------------------------------------
     def path(self, start: Sequence[float], goal: Sequence[float]) -> Path:
@@ -107,6 +113,20 @@ class PathPlanner:
     def travel_time(self, start: Sequence[float], goal: Sequence[float]) -> float:
         """``path(start, goal).travel_time`` (cached)."""
         return self.path(start, goal).travel_time
+
+    def estimate_time(self, start: Sequence[float], goal: Sequence[float]) -> float:
+        """The fastest time (s) from `start` to `goal` over the portal graph, without refining
+        the path: at least `travel_time`, and far cheaper for a goal asked about again (each
+        goal's cost-to-go over the graph is cached). For ranking robots and jobs.
+
+        Raises
+        ------
+        NoPathError
+            As `path`.
+        """
+        s = self._key(start, "start", start, goal)
+        g = self._key(goal, "goal", start, goal)
+        return self._portal_graph.estimate_time(s, g, self._to_goal_cached(g))
 
     def reference(
         self, start: Sequence[float], goal: Sequence[float], dt: float, t0: float = 0.0
@@ -150,6 +170,7 @@ class PathPlanner:
         """Forget every cached path and reference."""
         self._path_cached.cache_clear()
         self._ref_cached.cache_clear()
+        self._to_goal_cached.cache_clear()
 
     # -- the caches' keys and misses ----------------------------------------------------------
     def _key(self, point: Sequence[float], which: str, start, goal) -> XY:

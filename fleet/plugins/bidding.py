@@ -26,7 +26,9 @@ def estimate_completion(planner: PathPlanner, obs: Observation, job: Announcemen
     The robot first finishes its current job (drives to its goal, and waits there for the
     print if that lasts longer), then drives to the job's station while printing it: the
     delivery waits for whichever of trip and print ends last. Robots that already have a job
-    queued decline (None), as do robots with no path to the station.
+    queued decline (None), as do robots with no path to the station. Trip times are the path
+    layer's `PathPlanner.estimate_time` (the graph's time, cached per goal; a bid for every
+    robot and job would otherwise cost a path search each).
     """
     if obs.queued > 0:
         return None
@@ -34,11 +36,11 @@ def estimate_completion(planner: PathPlanner, obs: Observation, job: Announcemen
     busy = 0.0
     try:
         if obs.job is not None and obs.goal is not None:
-            busy = planner.travel_time(here, obs.goal)
+            busy = planner.estimate_time(here, obs.goal)
             if obs.print_end_s is not None:
                 busy = max(busy, obs.print_end_s - obs.t)
             here = obs.goal
-        travel = planner.travel_time(here, (job.x, job.y))
+        travel = planner.estimate_time(here, (job.x, job.y))
     except NoPathError:
         return None
     return float(busy + max(travel, job.print_s))

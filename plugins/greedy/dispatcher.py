@@ -25,7 +25,7 @@ class GreedyDispatcher(Dispatcher):
     ----------
     metric:
         ``"euclidean"`` (straight-line distance, the default) or ``"travel_time"`` (the path
-        layer's travel-time estimate, ``context.planner.travel_time``; robots with no path to
+        layer's travel-time estimate, ``context.planner.estimate_time``; robots with no path to
         the job are skipped).
 
     Raises
@@ -68,7 +68,7 @@ class GreedyDispatcher(Dispatcher):
         if self.metric == "euclidean":
             return math.hypot(job.x - robot.x, job.y - robot.y)
         try:
-            return float(context.planner.travel_time((robot.x, robot.y), (job.x, job.y)))
+            return float(context.planner.estimate_time((robot.x, robot.y), (job.x, job.y)))
         except NoPathError:
             return None
 
