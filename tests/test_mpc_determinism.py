@@ -109,3 +109,16 @@ def test_a_solve_stopped_by_the_wall_clock_guard_is_warned_of_and_counted(caplog
     assert len(warned) == hits
     # A run that never reaches the guard says so.
     assert summary({}, duration=20.0)["solver"]["time_limit_hits"] == 0
+
+
+def test_fleet_run_names_the_solves_cut_by_the_wall_clock(tmp_path, capsys) -> None:
+    from fleet.cli import main
+
+    case = str(REPO_ROOT / "scenarios" / "paper_case3_s1.toml")
+    common = ["run", case, "--duration", "5"]
+    guard = ["--set", "controller.options.time_limit_s=1e-6"]
+    assert main([*common, *guard, "--out", str(tmp_path / "cut")]) == 0
+    out = capsys.readouterr().out
+    assert "solves cut by the wall clock" in out and "5 (the run may not be" in out
+    assert main([*common, "--out", str(tmp_path / "quiet")]) == 0
+    assert "cut by the wall clock" not in capsys.readouterr().out
