@@ -80,9 +80,9 @@ HIGHS_OPTIONS: dict[str, object] = {
 }
 
 #: Branch-and-bound nodes per solve by default (HiGHS ``mip_max_nodes``, the controller's
-#: ``max_nodes``): the deterministic stopping rule, far above what normal solves need (the most
-#: any of 9,421 solves on case 3 and the 20- and 40-robot fleet took was 44; docs/mpc.md,
-#: "Deterministic stopping"), so they are untouched.
+#: ``max_nodes``): the deterministic stopping rule, above what normal solves need (of some
+#: 19,000 solves measured on case 3 and the 20- and 40-robot fleet, p99.9 25 nodes, the most
+#: 101; docs/mpc.md, "Deterministic stopping"), so they are untouched.
 DEFAULT_MAX_NODES = 200
 
 
