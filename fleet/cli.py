@@ -1041,6 +1041,13 @@ def _kpi_table(console: Console, s: dict) -> None:
             ),
             ("solver fallbacks", str(solver["fallbacks"])),
         ]
+        if solver.get("time_limit_hits"):
+            rows[-1:-1] = [
+                (
+                    "solves cut by the wall clock",
+                    f"{solver['time_limit_hits']} (the run may not be reproducible)",
+                )
+            ]
     latency = s.get("latency") or {}
     if latency.get("commands"):
         rows[-1:-1] = [

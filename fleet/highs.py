@@ -46,12 +46,15 @@ log = logging.getLogger("fleet.highs")
 THREADS = 1
 
 #: Options every object gets, before the caller's own: silent on the console, log to the
-#: callback (`SolverLog`), the process-wide thread count.
+#: callback (`SolverLog`), the process-wide thread count, and HiGHS's random seed fixed (its
+#: default, 0, stated so that no caller moves it: with one thread and a fixed seed a solve's
+#: answer depends on its inputs and its stopping rule only).
 BASE_OPTIONS: Mapping[str, object] = {
     "output_flag": True,
     "log_to_console": False,
     "log_file": "",
     "threads": THREADS,
+    "random_seed": 0,
 }
 
 #: Options only this module may set: a caller asking for them is a defect, caught at once.

@@ -305,11 +305,11 @@ def test_an_l_shaped_machine_between_start_and_goal_is_driven_around() -> None:
 
 # --- 4. fallbacks ---------------------------------------------------------------------------------
 
-FAILED = {SolverOutcome.NO_SOLUTION, SolverOutcome.FEASIBLE}
+FAILED = {SolverOutcome.NO_SOLUTION, SolverOutcome.FEASIBLE, SolverOutcome.TIME_LIMIT}
 
 
 def starve(controller: MPCController) -> None:
-    """Give the controller's current trip model (and every new one) a 1 us time limit."""
+    """Give the controller's current trip model (and every new one) a 1 us wall-clock guard."""
     controller.time_limit_s = 1e-6  # read when the next trip's model is built
     model = controller._model
     assert model is not None
@@ -327,7 +327,7 @@ def test_a_tiny_time_limit_falls_back_every_tick_and_stays_safe(interface: str) 
     assert outcomes <= FAILED and len(outcomes) > 0
     fallbacks = [c for c in loop.commands if c.status is ControlStatus.FALLBACK]
     assert fallbacks
-    assert all(c.solve.outcome is SolverOutcome.NO_SOLUTION for c in fallbacks)  # type: ignore[union-attr]
+    assert all(c.solve.outcome is SolverOutcome.TIME_LIMIT for c in fallbacks)  # type: ignore[union-attr]
     assert loop.violations() == []
     _, xy, _ = loop.trajectory()
     assert all(CORRIDOR.is_free(*p) for p in xy)
@@ -350,7 +350,7 @@ def test_a_failed_solve_on_the_plan_walks_down_the_shifted_plan_to_rest(interfac
         assert np.allclose(loop.p, plan[min(k, 8)][1:], rtol=0, atol=1e-6)
         cmd = loop.step(goal)
         assert cmd.status is ControlStatus.FALLBACK
-        assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.NO_SOLUTION
+        assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.TIME_LIMIT
         got = np.array(cmd.plan)
         np.testing.assert_allclose(got[:, 0], loop.t[-1] + dt * np.arange(9), atol=1e-9)
         np.testing.assert_allclose(got[:, 1:], np.array(expected)[:, 1:], rtol=0, atol=1e-9)
@@ -376,22 +376,34 @@ def test_a_failed_solve_off_the_plan_brakes_along_the_line_of_travel() -> None:
     cmd = loop.step(goal)
     assert (cmd.ax, cmd.ay) == brake_input(vx, vy, SPEC_HALF.period, SPEC_HALF.a_max)
     assert cmd.status is ControlStatus.FALLBACK and cmd.plan == ()
-    assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.NO_SOLUTION
+    assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.TIME_LIMIT
 
 
-def test_with_a_warm_start_a_starved_solve_keeps_the_shifted_plan_as_its_answer() -> None:
+@pytest.mark.parametrize("limit", ["nodes", "wall clock"])
+def test_with_a_warm_start_a_starved_solve_keeps_the_shifted_plan_as_its_answer(limit: str) -> None:
     goal = (18.0, 2.0)
     controller = MPCController(horizon=8, warm_start=True, interface="direct")
     loop = Loop.start(controller, CORRIDOR, (2.0, 2.0), SPEC_HALF)
     for _ in range(6):
         loop.step(goal)
     plan = loop.commands[-1].plan
-    starve(controller)
+    if limit == "nodes":
+        assert controller._model is not None
+        controller._model.max_nodes = 0  # stopped before the root (the option allows >= 1)
+    else:
+        starve(controller)
     for k in range(1, 5):
         cmd = loop.step(goal)
-        # The MIP start is an incumbent: stopped at the limit with a solution, used as is.
-        assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.FEASIBLE
-        assert cmd.status is ControlStatus.OK
+        assert cmd.solve is not None
+        if limit == "nodes":
+            # The MIP start is an incumbent: stopped at the work limit with it, used as is.
+            assert cmd.solve.outcome is SolverOutcome.FEASIBLE
+            assert cmd.status is ControlStatus.OK
+        else:
+            # The wall-clock guard's incumbent is not used (it depends on the machine's
+            # speed): the fallback follows the same shifted plan.
+            assert cmd.solve.outcome is SolverOutcome.TIME_LIMIT
+            assert cmd.status is ControlStatus.FALLBACK
         np.testing.assert_allclose(
             np.array(cmd.plan)[:, 1:], np.array((plan[k:] + (plan[-1],) * k)[:9])[:, 1:], atol=1e-9
         )
@@ -599,6 +611,11 @@ def test_a_horizon_shorter_than_braking_from_full_speed_is_refused() -> None:
         ("interface", "x"),
         ("time_limit_s", 0),
         ("time_limit_s", float("inf")),
+        ("max_nodes", 0),
+        ("max_nodes", 2.5),
+        ("max_nodes", True),
+        ("max_nodes", 2**31),
+        ("max_nodes", "100"),
         ("q_position", -1),
         ("q_velocity", float("nan")),
         ("r_input", "1"),

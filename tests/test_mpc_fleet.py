@@ -211,7 +211,7 @@ def test_a_fallback_brakes_rather_than_follow_its_old_plan_into_another_robot() 
     here, (vx, vy) = run.p.copy(), map(float, run.v)
     cmd = run.step()
     assert cmd.status is ControlStatus.FALLBACK
-    assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.NO_SOLUTION
+    assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.TIME_LIMIT
     assert (cmd.ax, cmd.ay) == brake_input(vx, vy, SPEC.period, SPEC.a_max)
     # Its plan is the braking path (for the other robots to avoid), ending at rest short of it.
     brake = np.array(cmd.plan)

@@ -187,8 +187,9 @@ def test_pipelined_mpc_robots_keep_clear_and_give_the_same_run_with_0_1_and_2_wo
     results = [World(sc, workers=w).run() for w in (0, 1, 2)]
     summaries = [r.summary for r in results]
     for result, s in zip(results, summaries, strict=True):
-        # No solve cut by the wall clock ("feasible", "no_solution": stopped at a limit), which
-        # would part the digests for another reason; an infeasible step falls back, by itself.
+        # No solve stopped at a limit (the wall-clock guard, "time_limit", would part the
+        # digests for another reason; the node limit: "feasible", "no_solution"); an infeasible
+        # step falls back, by itself.
         assert set(s["solver"]["termination"]) <= {"optimal", "infeasible"}
         assert s["violations"] == NO_VIOLATIONS, result.safety.examples
         assert s["engine"]["bus_timeouts"] == 0

@@ -11,7 +11,8 @@ Output contract (extend it, never break it):
   jobs {released, completed, good, defective, late, ...}, throughput_per_h, throughput_good_per_h,
   mean_lead_time_s, distance_m, violations {obstacle, speed_zone, print_speed, collision},
   quality {prints, outcomes {good, defective, failed}, max_error_mm},
-  solver {steps, median_ms, p95_ms, max_ms, fallbacks, termination {outcome: count}, ...}
+  solver {steps, median_ms, p95_ms, max_ms, fallbacks, termination {outcome: count},
+  time_limit_hits, ...}
   (solve statistics reported by optimising controllers), per_robot [{id, distance_m,
   jobs_completed, turned_rad, radius_m, goal_commands, goal_errors (commands sent while it had
   somewhere to go, and how many were errors)}], stuck_robots [{robot, reason}] (robots whose

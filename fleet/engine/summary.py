@@ -23,7 +23,7 @@ from fleet.engine.motion import EFFECT_EPS_S, RobotState
 from fleet.engine.recorder import Recorder
 from fleet.engine.safety import SafetyChecker, SafetyReport
 from fleet.floor import Floor
-from fleet.plugins import SolveReport
+from fleet.plugins import SolveReport, SolverOutcome
 from fleet.printing import CapSchedule
 from fleet.scenario import Latency, Scenario
 
@@ -314,6 +314,8 @@ def solver_summary(solves: list[SolveReport], stats: Mapping[str, int]) -> dict[
         "max_ms": None,
         "fallbacks": int(stats.get("commands_fallback", 0)),
         "termination": dict(sorted(outcomes.items())),
+        # Solves stopped by the wall clock: while this is 0 the run is reproducible.
+        "time_limit_hits": outcomes.get(SolverOutcome.TIME_LIMIT.value, 0),
     }
     if solves:
         solver = np.array([s.solver_s for s in solves]) * 1e3

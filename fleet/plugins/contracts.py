@@ -76,9 +76,14 @@ class SolverOutcome(enum.Enum):
     OPTIMAL = "optimal"
     """Solved to optimality (within the solver's gap tolerance)."""
     FEASIBLE = "feasible"
-    """Stopped at a limit (time, nodes) with a feasible solution, which is used."""
+    """Stopped at a work limit (e.g. branch-and-bound nodes) with a feasible solution, which is
+    used."""
     NO_SOLUTION = "no_solution"
-    """Stopped at a limit without any feasible solution: the controller fell back."""
+    """Stopped at a work limit without any feasible solution: the controller fell back."""
+    TIME_LIMIT = "time_limit"
+    """Stopped by the wall-clock guard: what the solver had found by then depends on the
+    machine's speed, so it is not used and the controller fell back. The run may not be
+    reproducible (the summary's ``solver.time_limit_hits`` counts these)."""
     INFEASIBLE = "infeasible"
     """The problem has no solution (e.g. the state left the modelled set): fell back."""
     ERROR = "error"

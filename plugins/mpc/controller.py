@@ -38,7 +38,7 @@ from fleet_plugins.mpc.neighbours import (
     must_hold,
     robots_to_avoid,
 )
-from fleet_plugins.mpc.options import check_horizon, check_options
+from fleet_plugins.mpc.options import DEFAULT_MAX_NODES, check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, within_caps
 from fleet_plugins.mpc.separation import Separation, build_separation, spans
@@ -97,12 +97,12 @@ class MPCController(Controller):
     robot's square covers both its plan and its braking path (it may drop its plan at its next
     tick). At most ``max_neighbours`` robots, the nearest, are constrained.
 
-    When a solve gives no usable solution (time limit without incumbent, infeasible, solver
-    error) the controller falls back: the previous plan shifted by one step if the robot is on
-    it and it keeps clear of every neighbour's predicted position, between the steps too (it
-    ends at rest, so it stays safe to its end), else braking along the line of travel (with
-    neighbours about, the command's plan is then the braking path, so that they avoid it). It
-    then plans a new trip.
+    When a solve gives no usable solution (node limit without incumbent, the wall-clock guard,
+    infeasible, solver error) the controller falls back: the previous plan shifted by one step
+    if the robot is on it and it keeps clear of every neighbour's predicted position, between
+    the steps too (it ends at rest, so it stays safe to its end), else braking along the line
+    of travel (with neighbours about, the command's plan is then the braking path, so that
+    they avoid it). It then plans a new trip.
     Every command carries a `SolveReport`.
 
     Parameters
@@ -113,8 +113,16 @@ class MPCController(Controller):
         Cost weights (the paper: Q = R = I).
     corridor:
         Reference chords either side of the expected progress whose regions a step may use.
+    max_nodes:
+        Branch-and-bound nodes per solve (HiGHS ``mip_max_nodes``): the solve's stopping
+        rule, which depends on the inputs only, so the same seed gives the same run however
+        loaded the machine is. A solve stopped by it applies its incumbent (``feasible``) or
+        falls back (``no_solution``). The default is far above any solve measured
+        (docs/mpc.md, "Deterministic stopping").
     time_limit_s:
-        Wall-clock limit per solve (s); a solve stopped with an incumbent uses it.
+        Wall-clock guard per solve (s), a last resort far above any normal solve: a solve it
+        stops falls back (what HiGHS had found depends on the machine's speed), is logged as
+        a warning and counted in the summary (``solver.time_limit_hits``).
     warm_start:
         Offer HiGHS the shifted previous plan as a starting solution (``interface = "direct"``
         only: Pyomo's persistent HiGHS interface has no warm start).
@@ -150,7 +158,8 @@ class MPCController(Controller):
         q_velocity: float = 1.0,
         r_input: float = 1.0,
         corridor: int = 1,
-        time_limit_s: float = 1.0,
+        time_limit_s: float = 10.0,
+        max_nodes: int = DEFAULT_MAX_NODES,
         warm_start: bool = True,
         interface: str = "direct",
         cost: str = "l1",
@@ -168,6 +177,7 @@ class MPCController(Controller):
             r_input=r_input,
             corridor=corridor,
             time_limit_s=time_limit_s,
+            max_nodes=max_nodes,
             warm_start=warm_start,
             interface=interface,
             cost=cost,
@@ -182,6 +192,7 @@ class MPCController(Controller):
         self.weights = (float(q_position), float(q_velocity), float(r_input))
         self.corridor = corridor
         self.time_limit_s = float(time_limit_s)
+        self.max_nodes = max_nodes
         self.warm_start = warm_start
         self.avoid_robots = avoid_robots
         self.separation_margin_m = float(separation_margin_m)
@@ -194,6 +205,7 @@ class MPCController(Controller):
         return (
             f"MPCController(horizon={self.horizon}, weights={self.weights}, "
             f"corridor={self.corridor}, time_limit_s={self.time_limit_s}, "
+            f"max_nodes={self.max_nodes}, "
             f"warm_start={self.warm_start}, interface={self.interface.value!r}, "
             f"cost={self.cost!r}, avoid_robots={self.avoid_robots}, "
             f"separation_margin_m={self.separation_margin_m}, "
@@ -358,6 +370,7 @@ class MPCController(Controller):
             self.weights,
             self.interface,
             self.time_limit_s,
+            self.max_nodes,
         )
         self._goal, self._failed, self._progress = goal, None, 0
         self.trips += 1

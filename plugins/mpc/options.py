@@ -11,9 +11,9 @@ import math
 import numbers
 
 from fleet.plugins import CAP_LOOKAHEAD_S, RobotSpec
-from fleet_plugins.mpc.model import Interface
+from fleet_plugins.mpc.model import DEFAULT_MAX_NODES, Interface
 
-__all__ = ["COSTS", "check_options", "check_horizon"]
+__all__ = ["COSTS", "DEFAULT_MAX_NODES", "check_options", "check_horizon"]
 
 #: The cost options: the 1-norm MILP, or that MILP's regions refined by the paper's quadratic cost.
 COSTS = ("l1", "quadratic")
@@ -35,6 +35,7 @@ def check_options(
     max_neighbours: object,
     respect_priority: object,
     reuse_ticks: object = 0,
+    max_nodes: object = DEFAULT_MAX_NODES,
 ) -> Interface:
     """Raise ValueError for the first of `MPCController`'s options that breaks its rule;
     return the `Interface` that `interface` names."""
@@ -52,6 +53,16 @@ def check_options(
     if not _non_negative(time_limit_s) or time_limit_s == 0:
         raise ValueError(
             f"MPCController option time_limit_s = {time_limit_s!r}: must be a number > 0"
+        )
+    if (
+        isinstance(max_nodes, bool)
+        or not isinstance(max_nodes, int)
+        or not 1 <= max_nodes <= _HIGHS_INT_MAX
+    ):
+        # 0 nodes stops every solve before its root: the robot would never move.
+        raise ValueError(
+            f"MPCController option max_nodes = {max_nodes!r}: must be an integer from 1 to "
+            f"{_HIGHS_INT_MAX}"
         )
     for label, flag in (
         ("warm_start", warm_start),
@@ -115,6 +126,10 @@ def check_horizon(horizon: int, spec: RobotSpec) -> None:
             f"{span:g} s reaches past the {CAP_LOOKAHEAD_S:g} s of print caps an "
             "observation carries; shorten the horizon"
         )
+
+
+#: The largest value of a HiGHS integer option.
+_HIGHS_INT_MAX = 2**31 - 1
 
 
 def _non_negative(x: object) -> bool:
