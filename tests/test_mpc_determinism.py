@@ -91,12 +91,12 @@ def test_a_run_stopped_by_the_work_limit_gives_the_same_digest_on_a_loaded_core(
     assert quiet[1].get("feasible", 0) > 0 and "time_limit" not in quiet[1], quiet[1]
     # ... and the loaded run stopped the same solves at the same place: the same trajectories.
     assert loaded[:2] == quiet[:2]
-    # The load was real: the loaded run waited for its core longer than it computed, and the
-    # same solves took longer on the wall clock, so a wall-clock limit (the old stopping rule)
-    # would have stopped other solves in the two runs, and parted them.
+    # The load was real: the loaded run waited for its core longer than it computed (three busy
+    # loops share it), so a wall-clock limit (the old stopping rule) would have stopped other
+    # solves. How much slower than the quiet run it was is not asserted: that depends on what
+    # else the machine runs.
     assert loaded[2] > 2.0, loaded[2]
     assert len(loaded[3]) == len(quiet[3])
-    assert sum(loaded[3]) > 1.2 * sum(quiet[3]), (sum(loaded[3]), sum(quiet[3]))
 
 
 def test_a_solve_stopped_by_the_wall_clock_guard_is_warned_of_and_counted(caplog) -> None:
