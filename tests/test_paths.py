@@ -8,7 +8,7 @@ from pathlib import Path as FilePath
 import numpy as np
 import pytest
 import shapely
-from hypothesis import HealthCheck, assume, event, given, settings
+from hypothesis import HealthCheck, assume, event, example, given, settings
 from hypothesis import strategies as st
 from shapely import affinity
 from shapely.geometry import LineString, Point, Polygon, box
@@ -540,6 +540,14 @@ CASE_FLOOR = FilePath(__file__).resolve().parent / "cases" / "reference_selfchec
     goal=st.tuples(st.integers(0, 10**6), st.lists(st.floats(0.01, 1), min_size=8, max_size=8)),
     dt=st.sampled_from([0.1, 0.25, 0.5, 1.0]),
     a_max=st.sampled_from([0.25, 0.5, 1.0, 2.0]),
+)
+# Found by this test: a leg converging onto a slow zone's edge from just outside it was not
+# bound by the zone (fixed by the boundary band, `fleet.paths.limits`).
+@example(
+    start=(5377, [0.5, 1.0, 1.0, 1.0, 0.5, 0.3125, 1.0, 1.0]),
+    goal=(17016, [1.0] * 8),
+    dt=1.0,
+    a_max=0.25,
 )
 def test_every_reference_on_the_case_floor_passes_the_independent_check(start, goal, dt, a_max):
     # Paths round its nested slow zones run along their edges, where a step's chord and its
