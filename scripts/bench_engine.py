@@ -18,7 +18,9 @@ The machine may be shared, so each run is also set against a floor: a minimal Si
 the same number of double integrators (one process per robot, a step and a timeout per tick,
 no bus, no controller), timed just before the run. ``ratio`` is the run's robot-steps/s over
 the loop's (the median of the per-repeat ratios), which a busy machine slows alike; ``x rt``
-is the real-time factor (simulated seconds per wall second).
+is the real-time factor (simulated seconds per wall second). ``cpu s`` is the CPU time of the
+run (this process: the engine and every agent), which the other jobs on a shared machine
+change far less than the wall clock, and ``steps/cpu s`` the robot-steps per CPU second.
 
 Nothing here is asserted: the figures go in notes and the README.
 
@@ -84,7 +86,8 @@ def main() -> None:
     radius = {"default": base.sensing_radius_m, "off": 0.0}
     print(
         f"{'robots':>7} {'load':>5} {'sensing':>7} {'sim s':>7} {'steps':>9} {'setup s':>8} "
-        f"{'run s':>8} {'steps/s':>10} {'x rt':>6} {'loop/s':>9} {'ratio':>7} {'off/on':>7}"
+        f"{'run s':>8} {'steps/s':>10} {'x rt':>6} {'loop/s':>9} {'ratio':>7} {'off/on':>7} "
+        f"{'cpu s':>8} {'steps/cpu s':>11}"
     )
     never = JobsConfig(mode="scripted", scripted=(ScriptedJob(1e12, floor.spec.stations[-1].name),))
     for n, load in [(n, load) for n in args.sizes for load in args.loads]:
@@ -97,7 +100,7 @@ def main() -> None:
         rate_of: dict[str, float] = {}
         for sensing in args.sensing:
             sensed = replace(sc, sensing_radius_m=radius[sensing])
-            setups, runs, rates, loops, ratios = [], [], [], [], []
+            setups, runs, rates, loops, ratios, cpus = [], [], [], [], [], []
             for _ in range(args.repeats):
                 loops.append(minimal_loop(n, args.steps, base.robots[0].period_s))
                 t0 = time.perf_counter()
@@ -106,8 +109,10 @@ def main() -> None:
                 profile = cProfile.Profile() if args.profile else None
                 if profile is not None:
                     profile.enable()
+                c1 = time.process_time()
                 result = world.run()
                 t2 = time.perf_counter()
+                cpus.append(time.process_time() - c1)
                 if profile is not None:
                     profile.disable()
                     stats = pstats.Stats(profile)
@@ -128,7 +133,8 @@ def main() -> None:
                 f"{statistics.median(setups):>8.2f} {statistics.median(runs):>8.2f} "
                 f"{rate_of[sensing]:>10.0f} "
                 f"{rate_of[sensing] * base.robots[0].period_s / n:>6.2f} "
-                f"{statistics.median(loops):>9.0f} {statistics.median(ratios):>7.4f} {ratio}",
+                f"{statistics.median(loops):>9.0f} {statistics.median(ratios):>7.4f} {ratio} "
+                f"{statistics.median(cpus):>8.2f} {steps / statistics.median(cpus):>11.0f}",
                 flush=True,
             )
 

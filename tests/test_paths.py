@@ -239,6 +239,31 @@ def test_reference_around_the_machine_obeys_the_step_semantics(dt):
         assert np.min(np.hypot(*(ref.positions - w).T)) <= 1e-9
 
 
+def test_reference_along_the_rest_of_a_path_from_a_stop_on_it():
+    floor = hall(slow_top=0.3)
+    planner = PathPlanner(floor)
+    path = planner.path((1, 5), (9, 5))
+    wp = path.waypoints
+    # Stopped half-way along the first leg: the same path on from there, timed from rest.
+    stop = tuple(((wp[0] + wp[1]) / 2).tolist())
+    ref = planner.reference_along(stop, wp[1:].tolist(), dt=0.25, t0=3.0)
+    assert_valid(floor, ref, stop, (9, 5))
+    assert ref.t0 == 3.0
+    assert np.array_equal(ref.path.waypoints[1:], wp[1:])
+    assert ref.path.travel_time < path.travel_time
+    # A stop right on a waypoint drops it (no zero-length leg).
+    on = planner.reference_along(tuple(wp[1].tolist()), wp[1:].tolist(), dt=0.25, t0=0.0)
+    assert np.array_equal(on.path.waypoints, wp[1:])
+
+
+def test_reference_along_refuses_a_leg_through_an_obstacle():
+    planner = PathPlanner(hall())
+    with pytest.raises(NoPathError, match="leaves the free space"):
+        planner.reference_along((1, 5), [(9, 5)], dt=0.25, t0=0.0)  # through the machine
+    with pytest.raises(NoPathError, match="no waypoints"):
+        planner.reference_along((1, 5), [], dt=0.25, t0=0.0)
+
+
 def test_reference_in_the_u_corridor_with_per_axis_zones():
     floor = u_corridor()
     planner = PathPlanner(floor, v_max=1.0, a_max=0.5)

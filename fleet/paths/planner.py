@@ -21,8 +21,8 @@ import numpy as np
 from fleet.errors import NoPathError
 from fleet.floor.compiled import Floor
 from fleet.paths.graph import XY, PortalGraph
-from fleet.paths.limits import SpeedLimits
-from fleet.paths.results import Path, Reference
+from fleet.paths.limits import OVERLAP_TOL, SpeedLimits
+from fleet.paths.results import Path, Reference, make_path
 from fleet.paths.timing import Timing
 
 #: Decimals kept of start and goal; planning uses the rounded points, so the cache is exact.
@@ -145,6 +145,42 @@ class PathPlanner:
         s = self._key(start, "start", start, goal)
         g = self._key(goal, "goal", start, goal)
         ref = self._ref_cached(s, g, float(dt))
+        return ref if t0 == 0.0 else ref.shifted(t0)
+
+    def reference_along(
+        self, start: Sequence[float], waypoints: Sequence[Sequence[float]], dt: float, t0: float
+    ) -> Reference:
+        """A reference from rest at `start` through `waypoints` to rest at the last of them,
+        sampled every `dt` from `t0`: the rest of an earlier path, driven again from where the
+        robot stopped on it, without searching the graph (not cached).
+
+        Raises
+        ------
+        NoPathError
+            When a leg of ``start, *waypoints`` leaves the free space (or there is none).
+        """
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"reference dt must be a positive number of seconds, got {dt!r}")
+        if not waypoints:
+            raise NoPathError(_safe(start), _safe(start), "no waypoints to drive along")
+        goal = waypoints[-1]
+        pts = [self._key(start, "start", start, goal)]
+        for w in waypoints:
+            q = self._key(w, "waypoint", start, goal)
+            # No zero-length legs (as `find_path`): a stop right on a waypoint drops it.
+            if math.hypot(q[0] - pts[-1][0], q[1] - pts[-1][1]) > OVERLAP_TOL:
+                pts.append(q)
+        if len(pts) == 1:
+            pts.append(pts[0])
+        total = 0.0
+        for a, b in zip(pts[:-1], pts[1:], strict=True):
+            t = self._limits.segment_time(np.asarray(a), np.asarray(b))
+            if t is None:
+                raise NoPathError(
+                    pts[0], pts[-1], f"leg {a} -> {b} leaves the free space of {self.floor.name!r}"
+                )
+            total += t
+        ref = self._timing.reference(make_path(np.asarray(pts), total), float(dt))
         return ref if t0 == 0.0 else ref.shifted(t0)
 
     def speed_limit(self, p: Sequence[float], q: Sequence[float]) -> tuple[float, float] | None:

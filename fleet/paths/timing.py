@@ -233,52 +233,14 @@ class Timing:
         inf = highspy.kHighsInf
         target = np.array([p.length / dt for p in pieces])
 
-        rows_lo: list[float] = []
-        rows_hi: list[float] = []
-        starts: list[int] = []
-        index: list[int] = []
-        value: list[float] = []
-
-        def row(lo: float, hi: float, entries: list[tuple[int, float]]) -> None:
-            starts.append(len(index))
-            rows_lo.append(lo)
-            rows_hi.append(hi)
-            for i, c in entries:
-                index.append(i)
-                value.append(c)
-
-        first = 0
-        for j, n in enumerate(counts):
-            row(0.0, float(target[j]), [(first + i, 1.0) for i in range(n)])
-            first += n
-        for i in range(n_tv):
-            a, b = piece_of[i], piece_of[i + 1]
-            if a == b:
-                step = pieces[a].accel * dt * shrink
-                row(-step, step, [(i, -1.0), (i + 1, 1.0)])
-            else:
-                ua, ub_ = pieces[a].u, pieces[b].u
-                for axis in (0, 1):
-                    if ua[axis] != 0.0 or ub_[axis] != 0.0:
-                        row(-adt, adt, [(i, -float(ua[axis])), (i + 1, float(ub_[axis]))])
-            row(-inf, 0.0, [(i, -1.0), (i + 1, 1.0), (M + i, -1.0)])
-            row(0.0, inf, [(i, -1.0), (i + 1, 1.0), (M + i, 1.0)])
-
+        rows_lo, rows_hi, starts, index, value = _rows(pieces, counts, piece_of, dt, adt)
         h = new_highs({"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10})
         h.addVars(nvar, np.zeros(nvar), np.concatenate([ub, np.full(n_tv, inf)]))
         cols = np.arange(nvar, dtype=np.int32)
         # Phase 1: cover as much of every piece as the steps allow (relative to its length, so
         # a long piece cannot buy coverage with a short one's).
         h.changeColsCost(nvar, cols, np.concatenate([-1.0 / target[piece_of], np.zeros(n_tv)]))
-        h.addRows(
-            len(rows_lo),
-            np.asarray(rows_lo),
-            np.asarray(rows_hi),
-            len(index),
-            np.asarray(starts, dtype=np.int32),
-            np.asarray(index, dtype=np.int32),
-            np.asarray(value),
-        )
+        h.addRows(len(rows_lo), rows_lo, rows_hi, len(index), starts, index, value)
         # A failed run raises SolverError (HiGHS's message): no timing can come from this LP.
         if solve(h, "reference timing LP").status != highspy.HighsModelStatus.kOptimal:
             return None, [p.length for p in pieces]  # pragma: no cover - x = 0 is feasible
@@ -367,6 +329,62 @@ class _Piece:
     length: float
     speed: float  # highest speed along u within the per-axis limit
     accel: float  # highest acceleration along u within the per-axis bound
+
+
+def _rows(
+    pieces: list[_Piece], counts: list[int], piece_of: np.ndarray, dt: float, adt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The speed LP's rows (lower and upper bounds, and the entries row by row, as HiGHS takes
+    them): per piece its coverage; per pair of consecutive steps the acceleration row (one per
+    moving axis where two pieces meet) and the two rows of the total variation.
+
+    Built with numpy: the LP runs once per plan and a row-by-row Python loop cost as much as
+    the solve. Columns 0..M-1 are the step speeds, M.. the total variation's.
+    """
+    M, J = int(sum(counts)), len(pieces)
+    n_tv = M - 1
+    shrink = 1.0 - LP_MARGIN
+    inf = highspy.kHighsInf
+    target = np.array([p.length / dt for p in pieces])
+    i = np.arange(n_tv)
+    a, b = piece_of[:-1], piece_of[1:]
+    same = a == b
+    step = np.array([p.accel for p in pieces]) * dt * shrink
+    u = np.array([p.u for p in pieces], dtype=float).reshape(J, 2)
+    ua, ub = u[a], u[b]
+    moving = (ua != 0.0) | (ub != 0.0)
+    # Up to four rows per pair, in this order: acceleration (along the piece, or the x axis
+    # where pieces meet), acceleration on the y axis (where pieces meet), TV below, TV above.
+    used = np.empty((n_tv, 4), dtype=bool)
+    used[:, 0] = same | moving[:, 0]
+    used[:, 1] = ~same & moving[:, 1]
+    used[:, 2:] = True
+    lo = np.empty((n_tv, 4))
+    hi = np.empty((n_tv, 4))
+    lo[:, 0] = np.where(same, -step[a], -adt)
+    hi[:, 0] = np.where(same, step[a], adt)
+    lo[:, 1], hi[:, 1] = -adt, adt
+    lo[:, 2], hi[:, 2] = -inf, 0.0
+    lo[:, 3], hi[:, 3] = 0.0, inf
+    width = np.array([2, 2, 3, 3])
+    cols = np.empty((n_tv, 4, 3), dtype=np.int32)
+    vals = np.empty((n_tv, 4, 3))
+    cols[:, :, 0], cols[:, :, 1], cols[:, :, 2] = i[:, None], i[:, None] + 1, M + i[:, None]
+    vals[:, 0, 0] = np.where(same, -1.0, -ua[:, 0])
+    vals[:, 0, 1] = np.where(same, 1.0, ub[:, 0])
+    vals[:, 1, 0], vals[:, 1, 1] = -ua[:, 1], ub[:, 1]
+    vals[:, 2:, 0], vals[:, 2:, 1] = -1.0, 1.0
+    vals[:, 2, 2], vals[:, 3, 2] = -1.0, 1.0
+    taken = used[:, :, None] & (np.arange(3) < width[:, None])[None, :, :]
+    sizes = np.concatenate(
+        [np.asarray(counts, dtype=np.int64), np.broadcast_to(width, used.shape)[used]]
+    )
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32)
+    index = np.concatenate([np.arange(M, dtype=np.int32), cols[taken]])
+    value = np.concatenate([np.ones(M), vals[taken]])
+    rows_lo = np.concatenate([np.zeros(J), lo[used]])
+    rows_hi = np.concatenate([target, hi[used]])
+    return rows_lo, rows_hi, starts, index, value
 
 
 def _merge_spans(spans: list[list], u: np.ndarray, dt: float) -> list[list]:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from typing import TYPE_CHECKING
 
 from fleet.errors import NoPathError
 from fleet.plugins import Command, Controller, ControllerContext, ControlStatus, Observation
@@ -24,6 +25,9 @@ from fleet_plugins.follower.guard import Guard
 from fleet_plugins.follower.pace import Planners, speed_limit
 from fleet_plugins.follower.track import Track
 from fleet_plugins.follower.yielding import DEFAULT_MARGIN_M, DEFAULT_YIELD_S
+
+if TYPE_CHECKING:
+    from fleet.paths import PathPlanner, Reference
 
 __all__ = [
     "PathFollower",
@@ -97,10 +101,15 @@ class PathFollower(Controller):
       it, full braking along the line of travel (`braking_path` from the next state), and then
       standing where that stops for `yield_s` more, keeps more than R, plus the step a
       neighbour may take in this same tick (`Forecast.lead`), from every neighbour's
-      forecast (`stops_clear`); otherwise the robot brakes (and drops its reference, so it
-      comes to rest and plans again), or stays at rest. A neighbour already closer than R (two
-      robots set off in the same tick) may not be approached at all, only moved away from or
-      passed square to: two followers never close in.
+      forecast (`stops_clear`); otherwise the robot brakes along its line of travel and, at
+      rest, drives the rest of the same path from where it stopped (timed anew from rest by
+      `PathPlanner.reference_along`, not searched again), or stays at rest. A robot at rest
+      sets off only if the check, made one tick ahead with each neighbour one step on at its
+      velocity, would let it drive on (`Guard.keeps_going`): otherwise it crept, setting off,
+      braking and timing a new reference every third tick. Robots routing round blockers
+      (rule 3) still creep: that can be what frees the deadlock. A neighbour already closer
+      than R (two robots set off in the same tick) may not be approached at all, only moved
+      away from or passed square to: two followers never close in.
     - **deadlock** (rule 3, ``obs.blockers``): the robot plans round the blockers it sees, each
       a temporary obstacle of radius R (`Detour`, built once per set of blockers; less where
       the robot stands closer), and does not yield to them. With no such route it brakes and
@@ -233,6 +242,9 @@ class PathFollower(Controller):
         self._route_key: tuple[str, ...] | None = None
         self._failed: tuple[object, ...] | None = None
         self._waiting = False
+        # The planner of the current reference, and the rest of its path after a hold.
+        self._planner: PathPlanner | None = None
+        self._resume: tuple[tuple[float, float], list[tuple[float, float]]] | None = None
 
     # -- the control law ------------------------------------------------------------------------
     def compute(self, obs: Observation) -> Command:
@@ -255,6 +267,8 @@ class PathFollower(Controller):
         stale = goal != self._goal or cap != self._cap or key != self._route_key
         if self._track is not None and (stale or self._track.off_track(obs)):
             self._track = None
+        if stale:
+            self._resume = None
         if self._track is None:
             self._waiting = False
             if max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
@@ -276,12 +290,16 @@ class PathFollower(Controller):
                     planner = self._guard.detour_planner(obs, cap)
                 if planner is None:
                     raise NoPathError((obs.x, obs.y), goal, "the blockers close every route")
-                ref = planner.reference(start=(obs.x, obs.y), goal=goal, dt=spec.period, t0=obs.t)
+                ref = self._resumed(obs, planner) if planner is self._planner else None
+                if ref is None:
+                    ref = planner.reference(
+                        start=(obs.x, obs.y), goal=goal, dt=spec.period, t0=obs.t
+                    )
             except NoPathError:
                 self._failed = attempt
                 return self._brake(obs, failure)
             self._goal, self._cap, self._route_key, self._failed = goal, cap, key, None
-            self._track = Track(ref)
+            self._track, self._planner, self._resume = Track(ref), planner, None
         track = self._track
         cmd = track.command(
             obs,
@@ -297,13 +315,22 @@ class PathFollower(Controller):
         if not self._guard.stops_inside(obs, stop):
             self.brakes_for_walls += 1
             return self._hold(obs, track)
+        if (
+            obs.neighbours
+            and not obs.blockers
+            and max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED
+            and not self._guard.keeps_going(obs, track, cmd, self._cap, self.gain)
+        ):
+            return self._hold(obs, track)  # no creeping: set off only to drive on
         self._waiting = False
         return cmd
 
     def _hold(self, obs: Observation, track: Track) -> Command:
         """Brake to rest (forgetting the reference), or stay at rest with it kept ready."""
         if max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
-            # It stops: the plan it sends says so, and it plans again once at rest.
+            # It stops: the plan it sends says so, and once at rest it drives the rest of the
+            # same path from there (its reference is timed anew, the path not searched again).
+            self._resume = track.rest_of_path(obs)
             self._track = None
             self._waiting = False
             return self._brake(obs, ControlStatus.OK)
@@ -317,6 +344,25 @@ class PathFollower(Controller):
             return Command(0.0, 0.0, ControlStatus.OK)
         held = ((obs.t, obs.x, obs.y), (obs.t + PLAN_HORIZON, obs.x, obs.y))
         return Command(0.0, 0.0, ControlStatus.OK, held)
+
+    def _resumed(self, obs: Observation, planner: PathPlanner) -> Reference | None:
+        """A reference along the rest of the path the robot was held on, from where it stopped;
+        None without one (or if a leg of it leaves the free space: then it plans anew)."""
+        if self._resume is None:
+            return None
+        (ux, uy), waypoints = self._resume
+        # Waypoints that braking along the leg carried it onto or past are behind it now.
+        k = 0
+        while k < len(waypoints) - 1 and (
+            (waypoints[k][0] - obs.x) * ux + (waypoints[k][1] - obs.y) * uy <= 1e-9
+        ):
+            k += 1
+        try:
+            return planner.reference_along(
+                (obs.x, obs.y), waypoints[k:], self.context.spec.period, obs.t
+            )
+        except NoPathError:
+            return None
 
     def _brake(self, obs: Observation, status: ControlStatus) -> Command:
         """Slow down along the current direction of travel at the full per-axis bound."""

@@ -3,12 +3,14 @@
 `Guard.may_go` applies rules 1 and 2 of `PathFollower` to each tracking command (the stopping
 check against every neighbour, yielding to higher-priority plans); `Guard.route` and
 `Guard.detour_planner` apply rule 3 (plan round the blockers in sight, a `Detour` built once per
-set of blockers). The pieces themselves are in `fleet_plugins.follower.yielding`.
+set of blockers); `Guard.keeps_going` keeps a robot at rest from setting off only to brake.
+The pieces themselves are in `fleet_plugins.follower.yielding`.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from shapely.geometry import LineString
@@ -27,6 +29,8 @@ __all__ = ["Guard", "MOVED_M"]
 #: A blocker that moved further than this (m) since a detour round it found no way is looked
 #: at again where it stands now.
 MOVED_M = 0.1
+#: Ticks ahead a robot at rest checks, before it sets off, that it could drive on.
+SET_OFF_TICKS = 1
 
 
 class Guard:
@@ -108,6 +112,37 @@ class Guard:
                 if f.robot in self.detour.clearance and f.priority < obs.priority
             }
         return stops_clear(stop + held, forecasts, spec.radius, self.margin_m, now, gaps)
+
+    def keeps_going(
+        self, obs: Observation, track: Track, cmd: Command, cap: float, gain: float
+    ) -> bool:
+        """Whether a robot about to set off from rest with `cmd` may, as far as it sees now,
+        also drive on for the next `SET_OFF_TICKS` ticks (`may_go` ahead, each neighbour one
+        step on at its velocity: that step is fixed, its next velocity is not known and kept).
+
+        Without it a robot held at speed by rule 1 crept: it set off, was held one tick later
+        (its braking path had grown), braked, dropped its reference and planned again from a
+        few centimetres on, every third tick. Staying at rest with the reference kept is always
+        allowed; the real check still runs at every tick.
+        """
+        dt, a_max = self.spec.period, self.spec.a_max
+        nxt = obs
+        for _ in range(SET_OFF_TICKS):
+            seen = tuple(replace(n, x=n.x + dt * n.vx, y=n.y + dt * n.vy) for n in nxt.neighbours)
+            nxt = replace(
+                nxt,
+                neighbours=seen,
+                tick=nxt.tick + 1,
+                t=nxt.t + dt,
+                x=nxt.x + dt * nxt.vx,
+                y=nxt.y + dt * nxt.vy,
+                vx=nxt.vx + dt * clip(cmd.ax, a_max),
+                vy=nxt.vy + dt * clip(cmd.ay, a_max),
+            )
+            cmd = track.command(nxt, dt=dt, a_max=a_max, gain=gain, steps=1, stride=1)
+            if not self.may_go(nxt, track, self.braking_after(nxt, cmd), cap):
+                return False
+        return True
 
     def stops_inside(self, obs: Observation, stop: list[tuple[float, float, float]]) -> bool:
         """Whether braking along `stop` (`braking_after` a command) keeps the robot in the

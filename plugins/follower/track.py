@@ -16,6 +16,8 @@ from fleet.plugins import Command, ControlStatus, Observation
 from fleet.plugins.robot import clip
 from fleet_plugins.follower.yielding import Sample
 
+XY = tuple[float, float]
+
 if TYPE_CHECKING:
     from fleet.paths import Reference
 
@@ -93,6 +95,29 @@ class Track:
         k = self.ref.index(obs.t)
         xs, ys = self.samples[0], self.samples[1]
         return max(abs(xs[k] - obs.x), abs(ys[k] - obs.y)) > REPLAN_ERROR
+
+    def rest_of_path(self, obs: Observation) -> tuple[tuple[float, float], list[XY]] | None:
+        """Where a robot braking now along its line of travel leaves the path: the direction of
+        the leg it is on and the waypoints after that leg (the goal last); None when the
+        robot is not on a leg of the path, moving along it.
+
+        A robot held while moving brakes to rest on that leg's line and drives the rest of the
+        same path from there (`PathPlanner.reference_along`) instead of searching it again.
+        """
+        wp = self.ref.path.waypoints.tolist()
+        x, y, vx, vy = obs.x, obs.y, obs.vx, obs.vy
+        for j in reversed(range(len(wp) - 1)):
+            (ax, ay), (bx, by) = wp[j], wp[j + 1]
+            dx, dy = bx - ax, by - ay
+            length = math.hypot(dx, dy)
+            if length == 0.0 or dx * vx + dy * vy <= 0.0:
+                continue
+            ux, uy = dx / length, dy / length
+            along = (x - ax) * ux + (y - ay) * uy
+            off = abs((x - ax) * uy - (y - ay) * ux)
+            if -REPLAN_ERROR <= along <= length + REPLAN_ERROR and off <= REPLAN_ERROR:
+                return (ux, uy), [(float(p[0]), float(p[1])) for p in wp[j + 1 :]]
+        return None
 
     def ahead(self, obs: Observation, dt: float, horizon: float) -> list[Sample]:
         """The reference's samples over the next `horizon` seconds: where the robot would be."""
