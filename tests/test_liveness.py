@@ -63,12 +63,6 @@ def judged(case: str, tmp_path: Path) -> list:
         # never is, and they held their spots for the whole hold (120 s), 1.9 and 2.5 m from
         # home for the last 90 s. A robot made way for is now past once at its goal.
         "aside_until_home",
-        # Fuzz seed 21 (s21-0455): period 0.91 s, a_max 1.75, so the follower keeps 3.15 m
-        # between centres. r02 stepped aside for r01 to a spot off r01's route as planned
-        # then; r01 had moved on and stood 2.06 m from it, in its gap, and neither moved for
-        # the last 80 s (two jobs undone). A spot that has not helped after a deadlock period
-        # is now looked for again, off the route from where the stuck robot stands.
-        "aside_that_did_not_help",
         # Fuzz seed 21 (s21-0507): period 1.0 s, a_max 1.86: homes are 3.63 m apart and the
         # follower keeps 3.58 m from a parked robot; r01, 4.0 m from home with r06 at its own
         # home in the way, never asked it to move (only within 3 m of home), for 500 s. The

@@ -11,9 +11,7 @@ and the stuck robot's goal, is clear of the other robots and is reached without 
 the stuck robot. It holds the spot until the robot it made way for has a new goal, is past
 (`PASSED_FACTOR`), is at its goal (`ARRIVED_M`), or lost its agent, for `HOLD_FACTOR` deadlock
 periods at most; then it goes on with its job, or home as idle robots do (or stays, without
-`return_home`). A job assigned or taken away meanwhile ends the wait. A robot at its spot whose
-stuck robot is still stuck a deadlock period later is sent to a new spot, off the route from
-where that robot stands now.
+`return_home`). A job assigned or taken away meanwhile ends the wait.
 
 Spots are found deterministically (no random draws), so a run stays reproducible.
 """
@@ -47,8 +45,7 @@ OTHERS_M = 0.2
 #: The gap (m) a controller keeps on top of the radii and the unseen step (the follower's
 #: default margin): a way aside must keep it from the stuck robot, or it is not driven.
 FOLLOWER_MARGIN_M = 0.1
-#: A robot is at its goal or spot this close (m): a robot let out to a spot nearby, or made way
-#: for, is past; a robot aside is at its spot.
+#: A robot let out to a spot nearby, or one made way for, is at its goal this close (m): past.
 ARRIVED_M = 0.1
 #: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the robot.
 RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
@@ -136,18 +133,11 @@ class MakeWay:
         stays (the deadlock stays reported)."""
         route = None
         for robot in movable:
+            if robot.aside is not None and robot.aside.made_way_for == stuck.id:
+                continue
             pair = (robot.id, stuck.id)
             if t < self._asked.get(pair, -math.inf) + self.retry_s:
                 continue
-            aside = robot.aside
-            if aside is not None and aside.made_way_for == stuck.id:
-                if math.hypot(aside.spot[0] - robot.x, aside.spot[1] - robot.y) > ARRIVED_M:
-                    continue  # still on its way there
-                # There a deadlock period and `stuck` still makes no progress: the spot did not
-                # help (the route was planned from where `stuck` stood then). Look again from
-                # here, off its route from where it stands now (fuzz s21-0455: two robots 2.06 m
-                # apart at a period of 0.91 s, which keeps 3.15 m, stood for the last 80 s).
-                robot.aside = None
             self._asked[pair] = t
             if route is None:
                 route = self._route(stuck, goal)

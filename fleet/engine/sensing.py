@@ -202,9 +202,6 @@ class Sensing:
             and (r.job is not None or priority[o.id] < priority[r.id])  # idle: one way only
             and (
                 o.job is None
-                # Aside for this one already: it waits for it anyway (`MakeWay.ask` moves it
-                # on once its spot proves no help).
-                or (o.aside is not None and o.aside.made_way_for == r.id)
                 or (
                     _no_progress(o, t, after)
                     and priority[o.id] < priority[r.id]
