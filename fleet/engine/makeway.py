@@ -9,9 +9,9 @@ stuck robot with a job, idle ones or stuck ones of lower priority not at their o
 candidates round it that lies in the free space, keeps `AWAY_M` plus both radii from the route
 and the stuck robot's goal, is clear of the other robots and is reached without closing in on
 the stuck robot. It holds the spot until the robot it made way for has a new goal, is past
-(`PASSED_FACTOR`), or lost its agent, for `HOLD_FACTOR` deadlock periods at most; then it goes
-on with its job, or home as idle robots do (or stays, without `return_home`). A job assigned or
-taken away meanwhile ends the wait.
+(`PASSED_FACTOR`), is at its goal (`ARRIVED_M`), or lost its agent, for `HOLD_FACTOR` deadlock
+periods at most; then it goes on with its job, or home as idle robots do (or stays, without
+`return_home`). A job assigned or taken away meanwhile ends the wait.
 
 Spots are found deterministically (no random draws), so a run stays reproducible.
 """
@@ -45,7 +45,7 @@ OTHERS_M = 0.2
 #: The gap (m) a controller keeps on top of the radii and the unseen step (the follower's
 #: default margin): a way aside must keep it from the stuck robot, or it is not driven.
 FOLLOWER_MARGIN_M = 0.1
-#: A robot let out to a spot nearby is there (m), for the one that backed off for it.
+#: A robot let out to a spot nearby, or one made way for, is at its goal this close (m): past.
 ARRIVED_M = 0.1
 #: The rings of candidate spots, in multiples of (both radii + `AWAY_M`) from the robot.
 RINGS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
@@ -267,6 +267,11 @@ class MakeWay:
         if other.watched_goal != aside.their_goal and not backing:
             return False
         gx, gy = aside.their_goal
+        if math.hypot(gx - other.x, gy - other.y) <= ARRIVED_M:
+            # There: a robot going home keeps that goal once home, and one stuck within
+            # `passed_m` of it is never "past"; those aside stood out the whole hold (fuzz
+            # seed 21: idle robots 1.4 to 3 m from home for the last 90 s of the run).
+            return False
         closer = math.hypot(gx - other.x, gy - other.y) < aside.their_gap - aside.passed_m
         sx, sy = aside.spot
         return not (closer and math.hypot(sx - other.x, sy - other.y) > aside.passed_m)
