@@ -96,7 +96,8 @@ class MPCController(Controller):
     does not solve but follows its previous plan while that keeps clear, else brakes (unless
     braking runs into a robot standing still: then it solves). A moving
     robot's square covers both its plan and its braking path (it may drop its plan at its next
-    tick). At most ``max_neighbours`` robots, the nearest, are constrained.
+    tick). The nearest ``max_neighbours`` robots are constrained, then any other the plan runs
+    into, solving again (`crowd`: in a crowd the plan ran through the fourth or fifth).
 
     When a solve gives no usable solution (time limit without incumbent, infeasible, solver
     error) the controller falls back: the previous plan shifted by one step if the robot is on
@@ -131,7 +132,8 @@ class MPCController(Controller):
         Clearance (m) kept between two robots' discs on top of the sum of their radii (soft:
         a plan enters it only where it cannot keep out).
     max_neighbours:
-        At most this many robots (the nearest that need it) are kept clear of per solve.
+        The solve keeps clear of this many robots (the nearest that need it), and of any other
+        one its plan then runs into (solved again with those added).
     respect_priority:
         Yield to higher-priority robots and keep course for lower ones unless they are parked
         or close (see above); False keeps clear of every robot in reach.
