@@ -26,7 +26,10 @@ import numpy as np
 from shapely.geometry import box
 
 from fleet.engine import World
+from fleet.engine.sensing import thin_plan
 from fleet.floor import Floor, FloorSpec, Station, compile_floor
+from fleet.paths import PathPlanner
+from fleet.plugins import ControllerContext, Neighbour, Observation, RobotSpec
 from fleet.scenario import (
     JobsConfig,
     PluginChoice,
@@ -35,9 +38,10 @@ from fleet.scenario import (
     ScriptedJob,
     sensing_needed,
 )
+from fleet_plugins.mpc.controller import MPCController
 from fleet_plugins.mpc.crowd import intrudes
-from fleet_plugins.mpc.neighbours import closest_approach
-from fleet_plugins.mpc.separation import Obstacle
+from fleet_plugins.mpc.neighbours import closest_approach, must_hold
+from fleet_plugins.mpc.separation import Obstacle, at_rest, predict
 
 RADIUS = 0.4
 
@@ -128,3 +132,28 @@ def test_a_plan_intrudes_on_a_box_between_samples_and_not_beside_it() -> None:
     # Standing still inside the box from the start is an intrusion too.
     still = np.zeros((6, 2))
     assert intrudes(Obstacle.square("r2", np.tile([0.5, 0.0], (6, 1)), 0.9, 0.1), still)
+
+
+def test_a_held_mpc_robot_at_rest_says_it_stays() -> None:
+    # 80 MPC robots, fleet scenario, after the fix above: r52 (priority 269) stood still, held
+    # by r58 (lower, close and moving), and braked at rest without a plan; an empty plan leaves
+    # the last one in force, which had r52 move 0.2 m away at 71 s. r58 kept 0.90 m from where
+    # that plan put r52 and came within 0.727 m of where it stood (radii 0.4) at 72.8 s. Now the
+    # held robot's command says it stays, and its neighbours see it parked.
+    spec = RobotSpec(v_max=1.0, a_max=0.5, radius=RADIUS, period=0.25)
+    floor = lane_floor()
+    lower = Neighbour("r58", 6.0, 5.5, -0.5, 0.0, RADIUS, 103, ((20.0, 6.0, 5.5), (21.0, 5.8, 5.5)))
+    obs = Observation("r52", 80, 20.0, 5.0, 5.5, 0.0, 0.0, goal=(2.0, 5.5), job="j1",
+                      neighbours=(lower,), priority=269)  # fmt: skip
+    assert must_hold(obs, spec, 25, 0.1)  # r58 is lower, moving and close: r52 holds
+    controller = MPCController()
+    controller.reset(ControllerContext("r52", spec, floor, PathPlanner(floor, 1.0, 0.5)))
+    cmd = controller.compute(obs)
+    assert (cmd.ax, cmd.ay) == (0.0, 0.0) and cmd.solve is None  # held: braked, no solve
+    assert cmd.plan, "an empty plan would leave the robot's last plan in force"
+    plan = np.array(cmd.plan)
+    assert plan[0, 0] == 20.0 and plan[-1, 0] >= 20.0 + 25 * spec.period - 1e-9
+    assert np.all(plan[:, 1:] == [5.0, 5.5])  # where it stands, for the whole horizon
+    # As r58 sees it (the engine thins and cuts plans at the tick): parked, kept clear of.
+    seen = Neighbour("r52", 5.0, 5.5, 0.0, 0.0, RADIUS, 269, thin_plan(cmd.plan, 0.5))
+    assert at_rest(predict(seen, 20.25, spec.period, 25))
