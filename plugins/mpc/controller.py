@@ -29,6 +29,7 @@ from fleet.plugins import (
     SolveReport,
     SolverOutcome,
 )
+from fleet_plugins.mpc.crowd import solve_clear
 from fleet_plugins.mpc.fallback import brake, follow_previous, park, plan_points, shifted
 from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
@@ -41,7 +42,7 @@ from fleet_plugins.mpc.neighbours import (
 from fleet_plugins.mpc.options import DEFAULT_MAX_NODES, check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, within_caps
-from fleet_plugins.mpc.separation import Separation, build_separation, spans
+from fleet_plugins.mpc.separation import Obstacle, Separation, spans
 from fleet_plugins.mpc.trip import Trip
 
 __all__ = ["MPCController"]
@@ -95,7 +96,8 @@ class MPCController(Controller):
     does not solve but follows its previous plan while that keeps clear, else brakes (unless
     braking runs into a robot standing still: then it solves). A moving
     robot's square covers both its plan and its braking path (it may drop its plan at its next
-    tick). At most ``max_neighbours`` robots, the nearest, are constrained.
+    tick). The nearest ``max_neighbours`` robots are constrained, then any other the plan runs
+    into, solving again (`crowd`: in a crowd the plan ran through the fourth or fifth).
 
     When a solve gives no usable solution (node limit without incumbent, the wall-clock guard,
     infeasible, solver error) the controller falls back: the previous plan shifted by one step
@@ -138,7 +140,8 @@ class MPCController(Controller):
         Clearance (m) kept between two robots' discs on top of the sum of their radii (soft:
         a plan enters it only where it cannot keep out).
     max_neighbours:
-        At most this many robots (the nearest that need it) are kept clear of per solve.
+        The solve keeps clear of this many robots (the nearest that need it), and of any other
+        one its plan then runs into (solved again with those added).
     respect_priority:
         Yield to higher-priority robots and keep course for lower ones unless they are parked
         or close (see above); False keeps clear of every robot in reach.
@@ -268,15 +271,13 @@ class MPCController(Controller):
             return brake(obs, spec, self.horizon, ControlStatus.OK)
         self._reused = 0
         data, warm = self._step_data(obs)
-        separation = self._separation(obs, data)
-        solution = self._model.solve(data, warm, separation)
+        solution, separation = self._solve(obs, data, warm)
         if solution.outcome is SolverOutcome.INFEASIBLE:
             # The corridor assumed the plan keeps pace with the reference; open it back to the
             # robot's own progress and try once more before falling back.
             first = solution.solver_s
             data, warm = self._step_data(obs, wide=True)
-            separation = self._separation(obs, data)
-            solution = self._model.solve(data, warm, separation)
+            solution, separation = self._solve(obs, data, warm)
             solution.solver_s += first
         if self.cost == "quadratic" and solution.outcome.usable:
             solution = self._refine(solution, data, separation)
@@ -405,34 +406,33 @@ class MPCController(Controller):
         return data, warm
 
     # -- other robots ---------------------------------------------------------------------------
-    def _separation(self, obs: Observation, data: StepData) -> Separation | None:
-        """The rows keeping this solve's plan clear of the robots that need it (None: none):
-        the nearest `max_neighbours` of those `neighbours.robots_to_avoid` finds."""
-        if not self.avoid_robots or not obs.neighbours or self.max_neighbours == 0:
-            self.separation_binaries.append(0)
-            self.separation_robots.append(())
-            return None
+    def _solve(
+        self, obs: Observation, data: StepData, warm: np.ndarray | None
+    ) -> tuple[Solution, Separation | None]:
+        """This tick's MILP kept clear of the robots that need it (`neighbours.robots_to_avoid`):
+        the nearest `max_neighbours`, and any other the plan runs into (`crowd.solve_clear`)."""
+        assert self._model is not None and self._trip is not None
         spec = self.context.spec
-        assert self._trip is not None
-        p_lo, p_hi = region_bounds(self._trip, self.horizon, data)
-        nearest = robots_to_avoid(
-            obs,
-            spec,
-            self.horizon,
-            p_lo,
-            p_hi,
-            margin=self.separation_margin_m,
-            respect_priority=self.respect_priority,
+        nearest: list[Obstacle] = []
+        p_lo = p_hi = None
+        if self.avoid_robots and obs.neighbours and self.max_neighbours > 0:
+            p_lo, p_hi = region_bounds(self._trip, self.horizon, data)
+            nearest = robots_to_avoid(
+                obs,
+                spec,
+                self.horizon,
+                p_lo,
+                p_hi,
+                margin=self.separation_margin_m,
+                respect_priority=self.respect_priority,
+            )
+        groups = spans(self.horizon, spec.period)
+        solution, separation, chosen = solve_clear(
+            self._model, data, warm, nearest, self.max_neighbours, p_lo, p_hi, groups
         )
-        chosen = tuple(nearest[: self.max_neighbours])
-        if not chosen:
-            self.separation_binaries.append(0)
-            self.separation_robots.append(())
-            return None
-        separation = build_separation(chosen, p_lo, p_hi, spans(self.horizon, spec.period))
-        self.separation_binaries.append(separation.binaries)
+        self.separation_binaries.append(0 if separation is None else separation.binaries)
         self.separation_robots.append(tuple(ob.robot for ob in chosen))
-        return separation
+        return solution, separation
 
     def _on_plan(self, obs: Observation) -> bool:
         """Whether the robot is where the last usable plan said it would be now."""

@@ -73,9 +73,15 @@ def park(obs: Observation, spec: RobotSpec, horizon: int) -> Command:
 
 def brake(obs: Observation, spec: RobotSpec, horizon: int, status: ControlStatus) -> Command:
     """Brake along the line of travel; with other robots about, the braking path is the
-    plan (else they would keep avoiding the last plan, which runs on past the stop)."""
+    plan (else they would keep avoiding the last plan, which runs on past the stop), and at
+    rest a plan that stays where it is (an empty plan leaves the last one in force: a robot
+    held at rest went on being seen along its old plan, moving away, and a lower robot drove
+    into where it stood, 0.73 m apart with radii 0.4, in the 80-robot fleet)."""
     if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
-        return Command(0.0, 0.0, status)
+        if not obs.neighbours:
+            return Command(0.0, 0.0, status)
+        end = obs.t + horizon * spec.period
+        return Command(0.0, 0.0, status, ((obs.t, obs.x, obs.y), (end, obs.x, obs.y)))
     ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
     plan: tuple[tuple[float, float, float], ...] = ()
     if obs.neighbours:

@@ -1,0 +1,83 @@
+"""Solving in a crowd: the nearest robots first, then every other one the plan runs into.
+
+A solve keeps clear of at most ``max_neighbours`` robots, the nearest of those that need it
+(`neighbours.robots_to_avoid`): each one adds binaries. In a crowd that is not enough: 80 MPC
+robots on the fleet scenario queue a dozen deep at a delivery point, and a lower robot's
+optimal plan ran straight into a higher robot that was fourth or fifth nearest (left out, so
+not kept clear of), which then stood in its way: 12 of the 13 contacts of that run (issue 16).
+So a usable plan is checked against every robot it must keep clear of (`intrudes`) and, while
+it runs into any that was left out, solved again with those added. The first solve is the
+same as before; the loop ends, since each round adds at least one robot of a finite list.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from fleet_plugins.mpc.model import Solution, StepData, TripModel
+from fleet_plugins.mpc.separation import Obstacle, Separation, build_separation
+
+__all__ = ["intrudes", "solve_clear"]
+
+
+def intrudes(ob: Obstacle, p: np.ndarray) -> bool:
+    """Whether plan `p` (steps 0..N) enters the hard part of `ob`'s box (its half-widths less
+    the soft margin: contact of the two discs is inside it) at some instant after now, between
+    the samples too.
+
+    Over a step both the plan and the box's centre move in straight lines, so their difference
+    does too; the box is taken at the larger of its two ends' half-widths. The difference
+    segment enters the box when, along both axes at once, it is within the half-width.
+    """
+    p = np.asarray(p, dtype=float)
+    n = min(len(p), len(ob.centres))
+    d = p[:n] - ob.centres[:n]
+    h = np.maximum(ob.half[: n - 1], ob.half[1:n]) - ob.margin  # (n-1, 2)
+    d0, step = d[:-1], np.diff(d, axis=0)
+    moving = np.abs(step) > 1e-12
+    safe = np.where(moving, step, 1.0)
+    # Where along each step, per axis, the difference is within (-h, h): the interval (a, b).
+    a = np.where(moving, np.minimum((-h - d0) / safe, (h - d0) / safe), -np.inf)
+    b = np.where(moving, np.maximum((-h - d0) / safe, (h - d0) / safe), np.inf)
+    still_out = ~moving & (np.abs(d0) >= h)
+    a, b = np.where(still_out, np.inf, a), np.where(still_out, -np.inf, b)
+    lo = np.maximum(np.max(a, axis=1), 0.0)
+    hi = np.minimum(np.min(b, axis=1), 1.0)
+    return bool(np.any(lo < hi))
+
+
+def solve_clear(
+    model: TripModel,
+    data: StepData,
+    warm: np.ndarray | None,
+    nearest: Sequence[Obstacle],
+    first: int,
+    p_lo: np.ndarray | None,
+    p_hi: np.ndarray | None,
+    spans: list[tuple[int, int]] | tuple[tuple[int, int], ...],
+) -> tuple[Solution, Separation | None, tuple[Obstacle, ...]]:
+    """Solve keeping clear of the first `first` of `nearest` (nearest first), then of every
+    other one of `nearest` the plan `intrudes` on, again until the plan runs into none of
+    them: the solution (its solver time summed over the rounds), its separation rows and the
+    robots kept clear of. `p_lo`, `p_hi` bound the plan's points (needed when `nearest` is
+    not empty); `spans` groups the steps (`separation.spans`)."""
+    chosen = list(nearest[:first])
+    left = list(nearest[first:])
+    spent = 0.0
+    while True:
+        separation = None
+        if chosen:
+            assert p_lo is not None and p_hi is not None
+            separation = build_separation(tuple(chosen), p_lo, p_hi, spans)
+        solution = model.solve(data, warm, separation)
+        solution.solver_s += spent
+        spent = solution.solver_s
+        if not solution.outcome.usable or solution.p is None:
+            return solution, separation, tuple(chosen)
+        more = [ob for ob in left if intrudes(ob, solution.p)]
+        if not more:
+            return solution, separation, tuple(chosen)
+        chosen += more
+        left = [ob for ob in left if all(ob is not m for m in more)]
