@@ -135,15 +135,15 @@ class SpeedLimits:
         # Only a segment nearly parallel to a boundary line (it is in the band for at most
         # 2 * band / |den| metres) that comes within the band of it, outside, can run along it
         # for `ALONG_M`: most calls have none and skip the second pass.
-        num_q = num - L[:, None] * den
-        if band > 0 and np.any(
-            (np.abs(den) * ALONG_M < 2.0 * band)
-            & (np.maximum(num, num_q) >= -band)
-            & (np.minimum(num, num_q) <= 0.0)
-        ):
-            lo_b, hi_b = overlaps(num + band)
-        else:
-            lo_b, hi_b = lo, hi
+        lo_b, hi_b = lo, hi
+        if band > 0:
+            num_q = num - L[:, None] * den
+            if np.any(
+                (np.abs(den) * ALONG_M < 2.0 * band)
+                & (np.maximum(num, num_q) >= -band)
+                & (np.minimum(num, num_q) <= 0.0)
+            ):
+                lo_b, hi_b = overlaps(num + band)
         return L, u, lo, hi, contains, sel, lo_b, hi_b
 
     def of_segments(self, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
