@@ -76,8 +76,8 @@ def solve_clear(
         spent = solution.solver_s
         if not solution.outcome.usable or solution.p is None:
             return solution, separation, tuple(chosen)
-        more = [ob for ob in left if intrudes(ob, solution.p)]
-        if not more:
+        hit = [intrudes(ob, solution.p) for ob in left]
+        if not any(hit):
             return solution, separation, tuple(chosen)
-        chosen += more
-        left = [ob for ob in left if all(ob is not m for m in more)]
+        chosen += [ob for ob, h in zip(left, hit, strict=True) if h]
+        left = [ob for ob, h in zip(left, hit, strict=True) if not h]
