@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 from dataclasses import replace
+from functools import cache
 
 import pytest
 
@@ -141,11 +142,24 @@ def test_same_seed_same_digest_with_0_1_and_2_workers():
     assert summaries[0]["jobs"]["completed"] >= 1
 
 
+def mpc_fleet_scenario():
+    """Six MPC robots on the shipped fleet scenario for 120 s."""
+    return fleet_scenario(robots=6, duration=120.0, controller="mpc")
+
+
+@cache
+def mpc_fleet_run(workers: int):
+    """`mpc_fleet_scenario` with `workers` worker processes, run once per session: the tests
+    here and tests/test_mpc_reuse.py read the same run."""
+    return World(mpc_fleet_scenario(), workers=workers).run()
+
+
 def test_mpc_robots_that_keep_clear_of_each_other_give_the_same_digest_with_0_and_2_workers():
     # The MPC's separation constraints make every robot's solve depend on the others' plans:
-    # any solve that depends on timing (HiGHS's clock, message order) shows here.
-    sc = fleet_scenario(robots=6, duration=240.0, controller="mpc")
-    results = [World(sc, workers=w).run() for w in (0, 2)]
+    # any solve that depends on timing (HiGHS's clock, message order) shows here. 120 s hold
+    # 447 solves, and parting the plans the workers see parts the digests (checked by sending
+    # every neighbour's plan as empty over the bus).
+    results = [mpc_fleet_run(w) for w in (0, 2)]
     summaries = [r.summary for r in results]
     for s in summaries:
         # Every solve ran to optimality: none was cut short by the wall clock (which would
@@ -276,18 +290,24 @@ def test_serve_and_two_agents_over_tcp_give_the_same_run_as_one_process(tmp_path
 def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
     keys = tmp_path / "keys"
     authorized = tmp_path / "authorized"
-    for name in ("engine", "agent", "stranger"):
-        done = subprocess.run(
-            fleet_cmd("keys", str(keys), "--name", name), capture_output=True, text=True
+    keys.mkdir(mode=0o700)  # as `fleet keys` makes it: the three below then run at once
+    makers = [
+        subprocess.Popen(
+            fleet_cmd("keys", str(keys), "--name", name),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
         )
-        assert done.returncode == 0, done.stderr
+        for name in ("engine", "agent", "stranger")
+    ]
+    for maker in makers:
+        _, err = maker.communicate(timeout=120)
+        assert maker.returncode == 0, err
     authorized.mkdir()
     (authorized / "agent.key").write_bytes((keys / "agent.key").read_bytes())
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
     common = [str(FLEET), "--robots", "2"]
 
-    def serve(wait: str) -> subprocess.Popen:
+    def serve(wait: str, address: str, out: str) -> subprocess.Popen:
         return subprocess.Popen(
             fleet_cmd(
                 "serve",
@@ -301,7 +321,7 @@ def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
                 "--authorized",
                 str(authorized),
                 "--out",
-                str(tmp_path / "served"),
+                str(tmp_path / out),
                 "--quiet",
                 "--no-figures",
                 "--wait",
@@ -312,7 +332,7 @@ def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
             text=True,
         )
 
-    def agent(name: str) -> subprocess.Popen:
+    def agent(name: str, address: str) -> subprocess.Popen:
         return subprocess.Popen(
             fleet_cmd(
                 "agent",
@@ -331,8 +351,15 @@ def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
             text=True,
         )
 
+    # Two engines with the same keys on ports of their own, at once (the stranger's mostly
+    # waits): one with a stranger for agent, one with the authorised agent.
+    ports = {free_port()}
+    while len(ports) < 2:  # neither engine has bound yet: ask until the two differ
+        ports.add(free_port())
+    closed, open_ = (f"tcp://127.0.0.1:{port}" for port in sorted(ports))
+    engine, stranger = serve("4", closed, "refused"), agent("stranger", closed)
+    friendly, friend = serve("60", open_, "served"), agent("agent", open_)
     # A stranger's key is refused: the engine never hears it, logs the refusal, gives up.
-    engine, stranger = serve("4"), agent("stranger")
     _, err = engine.communicate(timeout=120)
     _, stranger_err = stranger.communicate(timeout=60)
     assert engine.returncode == 1
@@ -341,10 +368,9 @@ def test_curve_keys_let_an_authorised_agent_in_and_refuse_a_stranger(tmp_path):
     assert stranger.returncode == 1
     assert "no answer from an engine" in stranger_err
     # The authorised agent is let in and the run completes.
-    engine, friend = serve("60"), agent("agent")
-    _, err = engine.communicate(timeout=180)
+    _, err = friendly.communicate(timeout=180)
     out, agent_err = friend.communicate(timeout=60)
-    assert engine.returncode == 0, err
+    assert friendly.returncode == 0, err
     assert friend.returncode == 0, agent_err
     assert "run finished" in out
 

@@ -15,8 +15,9 @@ from fleet.engine import World
 from fleet.errors import PluginError
 from fleet.plugins import ControlStatus, load_controller
 from fleet.printing import CapSchedule
-from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
+from fleet.scenario import PluginChoice
 from fleet_plugins.mpc import MPCController
+from tests.test_fleet import mpc_fleet_run, mpc_fleet_scenario
 from tests.test_mpc import L_HALL, SPEC_1S, Loop, l_hall
 from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away
 
@@ -134,9 +135,7 @@ def test_a_fleet_reusing_plans_is_safe_and_the_same_with_0_and_2_workers() -> No
     # Through the engine: 6 MPC robots on the shop floor with reuse, in this process and in
     # two worker processes: the same digest (a reuse depends on the observation only), no
     # violation, and fewer solves than the same fleet solving every tick.
-    base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml").override(
-        robots=6, duration=120.0, controller="mpc"
-    )
+    base = mpc_fleet_scenario()  # the shipped fleet.toml, 6 robots, 120 s, "mpc"
     reusing = replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 4}))
     results = [World(reusing, workers=w).run() for w in (0, 2)]
     summaries = [r.summary for r in results]
@@ -144,6 +143,6 @@ def test_a_fleet_reusing_plans_is_safe_and_the_same_with_0_and_2_workers() -> No
         assert set(s["solver"]["termination"]) == {"optimal"}  # none cut by the wall clock
         assert sum(s["violations"].values()) == 0, result.safety.examples
     assert summaries[0]["digest"] == summaries[1]["digest"]
-    every_tick = World(base).run().summary
+    every_tick = mpc_fleet_run(0).summary  # `base` in this process, shared with test_fleet.py
     assert summaries[0]["solver"]["steps"] < 0.6 * every_tick["solver"]["steps"]
     assert summaries[0]["jobs"]["completed"] >= every_tick["jobs"]["completed"] - 1 >= 0
