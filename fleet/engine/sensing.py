@@ -219,9 +219,15 @@ class Sensing:
                 t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(named)
             )
             log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, named)
-        r.blockers, r.stalled = blockers, stalled
         if movable:
             self.make_way.ask(r, goal, movable, t)
+        # Robots sent aside for this one leave its route: for a deadlock period it waits for
+        # them on its own route rather than routing round them. Named as blockers, a follower
+        # found no way round one in a door or beside a station and handed its job back in the
+        # very tick it was asked to step aside (fuzz seed 21: 44 of 61 hand-backs), and the job
+        # began again elsewhere, often to be handed back again.
+        r.blockers = tuple(b for b in blockers if not self.make_way.steps_aside_for(b, r.id, t))
+        r.stalled = stalled
 
     def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
         """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;
