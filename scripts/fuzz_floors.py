@@ -1209,6 +1209,10 @@ def fuzz(
             with multiprocessing.get_context("spawn").Pool(workers, maxtasksperchild=20) as pool:
                 for o in pool.imap_unordered(run_case, tasks):
                     take(o)
+                # Let the workers exit on their own: the block's exit terminates them, which
+                # leaks their semaphores (a resource_tracker warning at shutdown).
+                pool.close()
+                pool.join()
     tally.outcomes.sort(key=lambda o: o.name)
     return tally
 

@@ -107,3 +107,30 @@ def test_a_robot_shut_in_a_dead_end_is_let_out() -> None:
     assert [(e.robot, e.station) for e in backs] == [("r02", "r01")]  # r02 made way for r01
     for robot in world.robots.values():
         assert math.dist((robot.x, robot.y), robot.home) <= scenario.arrival_tolerance_m
+
+
+def test_a_robot_printing_on_the_station_lets_a_finished_part_be_delivered_first() -> None:
+    # r01 prints a 150 s part standing on the station, its destination; r02 brings a part done
+    # after 5 s to the same station. Waiting its turn, r02 delivered after r01 (fuzz s21-0607:
+    # a finished part waited 90 s while the robot on the station was given two more jobs there
+    # and printed both standing on it). Now r01 steps aside while it prints, and comes back.
+    scenario = load_scenario(CASES / "printing_on_station" / "scen.toml")
+    world = World(scenario)
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 2
+    assert s["violations"]["collision"] == 0
+    delivered = {e.job: e.t for e in world.recorder.events if e.event == "delivered"}
+    assert delivered["j00002"] < 60.0 < 150.0 <= delivered["j00001"]
+    asides = [(e.robot, e.station) for e in world.recorder.events if e.event == "make_way"]
+    assert asides[0] == ("r01", "r02")  # the printing robot made way for the finished part
+
+
+def test_a_robot_printing_on_a_via_station_lets_a_robot_pass_it() -> None:
+    # The same, but r02 only passes the station on its way elsewhere, its part done later
+    # than r01's: it needs the station for a moment, so it goes first all the same.
+    world = World(load_scenario(CASES / "via_printing_robot" / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 2
+    assert s["violations"]["collision"] == 0
+    passed = [e.t for e in world.recorder.events if e.event == "passed" and e.robot == "r02"]
+    assert len(passed) == 1 and passed[0] < 60.0

@@ -114,6 +114,31 @@ def test_the_idle_robot_holds_its_spot_until_the_stuck_robot_moves_on(world: Wor
         stuck.faulted = False
 
 
+def test_the_wait_aside_ends_once_the_other_is_at_rest_on_its_goal_not_driving_through(
+    world: World,
+) -> None:
+    # Fuzz s21-0607: an MPC robot braking into its station ran 0.07 m past it at 0.44 m/s;
+    # the robot aside took that for "there", came back into its way, and the other stood
+    # 0.37 m short of the station for 15 s.
+    idle, stuck = world.robots["r01"], world.robots["r02"]
+    hx, hy = stuck.home
+    # Stuck 1 m from its goal: nearer than a robot must gain to be "past" the one aside.
+    idle.x, idle.y, stuck.x, stuck.y = hx + 2.5, hy, hx + 1.0, hy
+    idle.aside, idle.job, stuck.job = None, None, None
+    stuck.return_home = True
+    stuck.watched_goal = stuck.home
+    make_way = fresh(world)
+    make_way.ask(stuck, stuck.home, [idle], t=0.0)
+    spot = idle.aside.spot
+    stuck.x, stuck.vx = hx - 0.07, -0.44  # through its goal, at speed
+    try:
+        assert make_way.goal_of(idle, 1.0) == spot
+        stuck.vx = 0.0  # at rest there: it has arrived, and the way back is free
+        assert make_way.goal_of(idle, 1.0) == idle.home
+    finally:
+        stuck.x, stuck.y, stuck.vx = 13.5, 10.0, 0.0
+
+
 @pytest.fixture(scope="module")
 def world3() -> World:
     # At a period of 0.8 s the step a robot may take unseen is 0.45 m: the gaps are wider.

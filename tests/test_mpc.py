@@ -767,6 +767,23 @@ def test_the_quadratic_cost_drives_safely_and_more_smoothly_than_the_1_norm() ->
     assert reports and all(r.outcome is SolverOutcome.OPTIMAL for r in reports)
 
 
+def test_a_refinement_stopped_by_the_clock_falls_back_and_is_reported_as_a_time_limit() -> None:
+    # Whether the QP finished in time depends on the machine, so its step must not use the
+    # MILP's plan instead (that would make the run depend on the machine's speed too).
+    controller = MPCController(horizon=8, cost="quadratic")
+    loop = Loop.start(controller, CORRIDOR, (2.0, 2.0), SPEC_HALF)
+    for _ in range(4):
+        assert loop.step((18.0, 2.0)).status is ControlStatus.OK
+    assert controller._model is not None and controller._model.time_limit_s == 10.0
+    controller.time_limit_s = 1e-9  # the refinement's guard; the trip's MILP keeps its 10 s
+
+    cmd = loop.step((18.0, 2.0))
+
+    assert cmd.status is ControlStatus.FALLBACK
+    assert cmd.solve is not None and cmd.solve.outcome is SolverOutcome.TIME_LIMIT
+    assert loop.violations() == []
+
+
 def test_an_unknown_cost_is_refused() -> None:
     with pytest.raises(ValueError, match="cost = 'l2': must be one of 'l1', 'quadratic'"):
         MPCController(cost="l2")

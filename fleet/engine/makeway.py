@@ -4,14 +4,15 @@ An idle robot (no job, none queued) never leaves its spot by itself, and robots 
 wait for each other (several crowding one station) never move either, so a robot whose route
 runs through such a spot, or ends on it (a via station where an idle robot is parked), would
 wait for good. When the deadlock watch (`fleet.engine.sensing`) finds, among the robots round a
-stuck robot with a job, idle ones or stuck ones of lower priority not at their own goals,
+stuck robot with a job, idle ones, stuck ones of lower priority not at their own goals, or
+one printing on the stuck robot's goal whose part is done later than the stuck robot's,
 `MakeWay` sends each to a spot off the stuck robot's route: the nearest of a few rings of
 candidates round it that lies in the free space, keeps `AWAY_M` plus both radii from the route
 and the stuck robot's goal, is clear of the other robots and is reached without closing in on
 the stuck robot. It holds the spot until the robot it made way for has a new goal, is past
-(`PASSED_FACTOR`), is at its goal (`ARRIVED_M`), or lost its agent, for `HOLD_FACTOR` deadlock
-periods at most; then it goes on with its job, or home as idle robots do (or stays, without
-`return_home`). A job assigned or taken away meanwhile ends the wait.
+(`PASSED_FACTOR`), is at rest at its goal (`ARRIVED_M`), or lost its agent, for
+`HOLD_FACTOR` deadlock periods at most; then it goes on with its job, or home as idle robots
+do (or stays, without `return_home`). A job assigned or taken away meanwhile ends the wait.
 
 Spots are found deterministically (no random draws), so a run stays reproducible.
 """
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 import shapely
 from shapely.geometry import LineString, Point
 
-from fleet.engine.motion import RobotState
+from fleet.engine.motion import RobotState, at_rest_near
 from fleet.engine.recorder import Recorder
 from fleet.errors import NoPathError
 from fleet.floor import Floor
@@ -278,10 +279,12 @@ class MakeWay:
         if other.watched_goal != aside.their_goal and not backing:
             return False
         gx, gy = aside.their_goal
-        if math.hypot(gx - other.x, gy - other.y) <= ARRIVED_M:
+        if at_rest_near(other, aside.their_goal, ARRIVED_M):
             # There: a robot going home keeps that goal once home, and one stuck within
             # `passed_m` of it is never "past"; those aside stood out the whole hold (fuzz
-            # seed 21: idle robots 1.4 to 3 m from home for the last 90 s of the run).
+            # seed 21: idle robots 1.4 to 3 m from home for the last 90 s of the run). At
+            # rest there: one that drives through it (an MPC braking) is not there yet, and
+            # the one aside came back into its way (fuzz s21-0607).
             return False
         closer = math.hypot(gx - other.x, gy - other.y) < aside.their_gap - aside.passed_m
         sx, sy = aside.spot

@@ -215,6 +215,7 @@ class Sensing:
                     and o.goal is not None
                     and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
                 )
+                or _prints_on_longer(o, r, goal, t + after, tol)
             )
         ]
         stalled = bool(blockers or movable)
@@ -354,6 +355,27 @@ def thin_plan(
         out.pop()  # keep the last sample, not one a moment before it
     out.append(plan[-1])
     return tuple(out)
+
+
+def _prints_on_longer(
+    o: RobotState, r: RobotState, goal: tuple[float, float], t: float, tol: float
+) -> bool:
+    """Whether `o` waits at `goal`, its destination too, for a print that ends after `t` and
+    after `r` is done there (its part ready, or `goal` only a via station it passes): then
+    `r` goes first and `o` steps aside meanwhile. Waiting its turn starved a finished part
+    otherwise (fuzz s21-0607: 90 s, while the robot on the station was given two more jobs
+    there and printed both standing on it)."""
+    theirs, mine = o.job, r.job
+    if theirs is None or mine is None or theirs.arrived_s is None or o.goal is None:
+        return False
+    if math.hypot(o.goal[0] - goal[0], o.goal[1] - goal[1]) > tol:
+        return False
+    end = theirs.print_end_s
+    if end is None or end <= t:
+        return False
+    passing = mine.leg < len(mine.via)
+    ready = -math.inf if passing or not mine.tasks else mine.print_end_s
+    return ready is not None and ready < end
 
 
 def _no_progress(r: RobotState, t: float, after: float) -> bool:

@@ -73,8 +73,9 @@ def refine_milp(
     QP was optimal; if it was not, the MILP's own solution (its time counting both solves).
 
     With other robots about, the sides of their squares the MILP chose are fixed too: each
-    is a bound on one coordinate of one point, so the QP keeps clear of them as well. The
-    other arguments are `refine_quadratic`'s.
+    is a bound on one coordinate of one point, so the QP keeps clear of them as well. A QP
+    stopped by the wall-clock guard gives an unusable ``TIME_LIMIT`` solution instead of the
+    MILP's (the step falls back). The other arguments are `refine_quadratic`'s.
     """
     assert milp.regions is not None
     if separation is not None and milp.separation is not None:
@@ -92,6 +93,11 @@ def refine_milp(
         time_limit_s=time_limit_s,
         highs=highs,
     )
+    if qp.outcome is SolverOutcome.TIME_LIMIT:
+        # Whether the QP finished depended on the machine's speed, so the step must not
+        # depend on it either: it falls back like a MILP stopped by the clock (and is counted
+        # in the summary's ``solver.time_limit_hits``).
+        return Solution(SolverOutcome.TIME_LIMIT, milp.solver_s + qp.solver_s), False
     if qp.outcome is not SolverOutcome.OPTIMAL:
         milp.solver_s += qp.solver_s
         return milp, False
