@@ -126,6 +126,17 @@ class MakeWay:
             return robot.charger_at
         return robot.home if robot.return_home else None
 
+    def steps_aside_for(self, robot: str, stuck: str, t: float) -> bool:
+        """Whether `robot` was sent aside for `stuck` less than a deadlock period ago and still
+        goes there or waits there: `stuck` may wait for it on its own route. Once that period
+        is out the robot aside is in the way like any other (it may be stuck itself)."""
+        aside = self.robots[robot].aside
+        return (
+            aside is not None
+            and aside.made_way_for == stuck
+            and t < aside.until - self.hold_s + self.retry_s
+        )
+
     def ask(
         self, stuck: RobotState, goal: tuple[float, float], movable: Sequence[RobotState], t: float
     ) -> None:
