@@ -184,7 +184,8 @@ def test_a_killed_worker_is_a_fault_its_jobs_move_on_and_a_restarted_agent_rejoi
     sc = replace(
         fleet_scenario(robots=4, duration=150.0),
         jobs=scripted("cnc_1_in", "qc_lab_in", "furnace_in", "paint_booth_in"),
-        bus=BusConfig(timeout_s=5.0, lost_after_s=1.0, lockstep=lockstep),
+        # 3 s of silence (the default): at 1 s a live worker on a loaded machine may be lost too.
+        bus=BusConfig(timeout_s=5.0, lost_after_s=3.0, lockstep=lockstep),
     )
     world = World(sc, workers=2)
     victim = world.workers.processes[0]
