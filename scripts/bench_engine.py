@@ -26,9 +26,9 @@ versions of the code that give the same digest drove every robot the same.
 
 Nothing here is asserted: the figures go in notes and the README.
 
-With ``--profile N`` each run goes under cProfile (timed by CPU time) and its N top entries, by cumulative and by
-own time, are printed after it (docs/performance.md; the profiler's cost per Python call makes
-the figures above it slower).
+With ``--profile N`` each run goes under cProfile, timed by CPU time, and its N top entries,
+by cumulative and by own time, are printed after it (docs/performance.md; the profiler's cost
+per Python call makes the figures above it slower).
 
     python scripts/bench_engine.py [--sizes 10 100 1000] [--steps 100000] [--repeats 3]
                                    [--sensing default off] [--loads busy idle] [--profile N]
