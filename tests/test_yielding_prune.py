@@ -9,7 +9,6 @@ hair either side of the gap.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -19,7 +18,6 @@ from fleet_plugins.follower.yielding import (
     Forecast,
     bounds,
     braking_path,
-    forecasts,
     must_yield,
     stops_clear,
 )
@@ -132,24 +130,3 @@ def test_bounds_of_a_plan_without_samples_in_reach() -> None:
     far = Forecast.of(Neighbour("h", 50.0, 50.0, 0, 1, plan=((4.0, 50.0, 60.0),)), 0.0, DT, A_MAX)
     assert math.isclose(far.bounds()[1], 50.0)
     assert not must_yield(own, far, GAP) and not must_yield(own, far, GAP, prune=False)
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.data())
-def test_forecasts_kept_for_the_instant_are_those_made_anew(data: st.DataObject) -> None:
-    t = data.draw(st.floats(0.0, 100.0))
-    seen = data.draw(st.lists(neighbours(t), max_size=8))
-    first = forecasts(seen, t, DT, A_MAX)
-    # Asked again, by another robot that sees the same neighbours (equal, not the same objects).
-    again = forecasts([replace(n) for n in seen], t, DT, A_MAX)
-    assert first == again == [Forecast.of(n, t, DT, A_MAX) for n in seen]
-    # At another time or period they are made anew.
-    later = forecasts(seen, t + DT, DT, A_MAX)
-    assert later == [Forecast.of(n, t + DT, DT, A_MAX) for n in seen]
-    coarse = forecasts(seen, t, 1.0, A_MAX)
-    assert coarse == [Forecast.of(n, t, 1.0, A_MAX) for n in seen]
-
-
-def test_a_plan_given_as_a_list_is_forecast_but_not_kept() -> None:
-    n = Neighbour("r2", 0.0, 0.0, 1.0, 0.0, plan=[(1.0, 1.0, 0.0), (2.0, 1.0, 1.0)])  # type: ignore[arg-type]
-    assert forecasts([n], 0.0, DT, A_MAX) == [Forecast.of(n, 0.0, DT, A_MAX)]

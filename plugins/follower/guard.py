@@ -20,9 +20,9 @@ from fleet.plugins.robot import clip
 from fleet_plugins.follower.track import Track
 from fleet_plugins.follower.yielding import (
     Detour,
+    Forecast,
     bounds,
     braking_path,
-    forecasts,
     must_yield,
     stops_clear,
 )
@@ -84,14 +84,16 @@ class Guard:
         `PathFollower`); if not, it must hold."""
         spec = self.spec
         dt, a_max = spec.period, spec.a_max
-        seen = forecasts(obs.neighbours, obs.t, dt, a_max)
+        forecasts = [Forecast.of(n, obs.t, dt, a_max) for n in obs.neighbours]
         # Where it would stop must stay clear a while too: stopping right in the way of a
         # robot about to pass is no stop in time.
         t_stop, x_stop, y_stop = stop[-1]
         held = [(t_stop + i * dt, x_stop, y_stop) for i in range(1, self.hold_steps + 1)]
         blockers = set(obs.blockers)  # routed round: waiting for them would undo the detour
         higher = [
-            f for f in seen if f.priority > obs.priority and f.has_plan and f.robot not in blockers
+            f
+            for f in forecasts
+            if f.priority > obs.priority and f.has_plan and f.robot not in blockers
         ]
         if higher:
             # The braking horizon from the top speed, plus the time to get there: the window
@@ -114,10 +116,10 @@ class Guard:
                 f.robot: min(
                     spec.radius + f.radius + self.margin_m, self.detour.clearance[f.robot] - 1e-3
                 )
-                for f in seen
+                for f in forecasts
                 if f.robot in self.detour.clearance and f.priority < obs.priority
             }
-        return stops_clear(stop + held, seen, spec.radius, self.margin_m, now, gaps)
+        return stops_clear(stop + held, forecasts, spec.radius, self.margin_m, now, gaps)
 
     def keeps_going(
         self, obs: Observation, track: Track, cmd: Command, cap: float, gain: float

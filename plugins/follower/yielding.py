@@ -36,7 +36,6 @@ __all__ = [
     "DEFAULT_YIELD_S",
     "Sample",
     "Forecast",
-    "forecasts",
     "braking_path",
     "stops_clear",
     "must_yield",
@@ -163,32 +162,6 @@ class Forecast:
             return _to_segment(x, y, px, py, bx, by)
         x0, y0, x1, y1 = self.reach
         return max(_to_segment(x, y, x0, y0, x1, y1) - self.slack, 0.0)
-
-
-def forecasts(neighbours: Sequence[Neighbour], t: float, dt: float, a_max: float) -> list[Forecast]:
-    """`Forecast.of` each of `neighbours`, kept for the instant: a robot is seen by up to
-    eight others at each tick, and agents in one process share what they worked out (the
-    same neighbour, time and robot figures give the same forecast)."""
-    out = []
-    for n in neighbours:
-        key = (n, t, dt, a_max)
-        try:
-            f = _FORECASTS.get(key)
-        except TypeError:  # a plan given as a list: not kept
-            out.append(Forecast.of(n, t, dt, a_max))
-            continue
-        if f is None:
-            if len(_FORECASTS) >= _FORECASTS_KEPT:
-                _FORECASTS.clear()
-            f = _FORECASTS[key] = Forecast.of(n, t, dt, a_max)
-        out.append(f)
-    return out
-
-
-#: The forecasts `forecasts` made, by neighbour, time, period and acceleration bound; cleared
-#: when it holds `_FORECASTS_KEPT` (a few ticks of a thousand robots).
-_FORECASTS: dict[tuple[Neighbour, float, float, float], Forecast] = {}
-_FORECASTS_KEPT = 20_000
 
 
 def stops_clear(
