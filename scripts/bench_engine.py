@@ -21,12 +21,14 @@ the loop's (the median of the per-repeat ratios), which a busy machine slows ali
 is the real-time factor (simulated seconds per wall second). ``cpu s`` is the CPU time of the
 run (this process: the engine and every agent), which the other jobs on a shared machine
 change far less than the wall clock, and ``steps/cpu s`` the robot-steps per CPU second.
+``digest`` is the start of the run's trajectory digest (the repeats' distinct ones): two
+versions of the code that give the same digest drove every robot the same.
 
 Nothing here is asserted: the figures go in notes and the README.
 
-With ``--profile N`` each run goes under cProfile and its N top entries, by cumulative and by
-own time, are printed after it (docs/performance.md; the profiler's cost per Python call makes
-the figures above it slower).
+With ``--profile N`` each run goes under cProfile, timed by CPU time, and its N top entries,
+by cumulative and by own time, are printed after it (docs/performance.md; the profiler's cost
+per Python call makes the figures above it slower).
 
     python scripts/bench_engine.py [--sizes 10 100 1000] [--steps 100000] [--repeats 3]
                                    [--sensing default off] [--loads busy idle] [--profile N]
@@ -87,7 +89,7 @@ def main() -> None:
     print(
         f"{'robots':>7} {'load':>5} {'sensing':>7} {'sim s':>7} {'steps':>9} {'setup s':>8} "
         f"{'run s':>8} {'steps/s':>10} {'x rt':>6} {'loop/s':>9} {'ratio':>7} {'off/on':>7} "
-        f"{'cpu s':>8} {'steps/cpu s':>11}"
+        f"{'cpu s':>8} {'steps/cpu s':>11} {'digest':>12}"
     )
     never = JobsConfig(mode="scripted", scripted=(ScriptedJob(1e12, floor.spec.stations[-1].name),))
     for n, load in [(n, load) for n in args.sizes for load in args.loads]:
@@ -100,13 +102,13 @@ def main() -> None:
         rate_of: dict[str, float] = {}
         for sensing in args.sensing:
             sensed = replace(sc, sensing_radius_m=radius[sensing])
-            setups, runs, rates, loops, ratios, cpus = [], [], [], [], [], []
+            setups, runs, rates, loops, ratios, cpus, digests = [], [], [], [], [], [], []
             for _ in range(args.repeats):
                 loops.append(minimal_loop(n, args.steps, base.robots[0].period_s))
                 t0 = time.perf_counter()
                 world = World(sensed, floor)
                 t1 = time.perf_counter()
-                profile = cProfile.Profile() if args.profile else None
+                profile = cProfile.Profile(time.process_time) if args.profile else None
                 if profile is not None:
                     profile.enable()
                 c1 = time.process_time()
@@ -119,6 +121,7 @@ def main() -> None:
                     for key in ("cumulative", "tottime"):
                         stats.sort_stats(key).print_stats(args.profile)
                 steps = result.summary["engine"]["robot_steps"]
+                digests.append(result.summary["digest"][:12])
                 setups.append(t1 - t0)
                 runs.append(t2 - t1)
                 rates.append(steps / (t2 - t1))
@@ -134,7 +137,8 @@ def main() -> None:
                 f"{rate_of[sensing]:>10.0f} "
                 f"{rate_of[sensing] * base.robots[0].period_s / n:>6.2f} "
                 f"{statistics.median(loops):>9.0f} {statistics.median(ratios):>7.4f} {ratio} "
-                f"{statistics.median(cpus):>8.2f} {steps / statistics.median(cpus):>11.0f}",
+                f"{statistics.median(cpus):>8.2f} {steps / statistics.median(cpus):>11.0f} "
+                f"{','.join(sorted(set(digests))):>12}",
                 flush=True,
             )
 

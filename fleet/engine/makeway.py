@@ -24,6 +24,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import shapely
 from shapely.geometry import LineString, Point
 
@@ -56,6 +57,9 @@ DIRECTIONS = 24
 LOOK_AHEAD_M = 4.0
 #: A robot holds its spot aside for at most this many deadlock periods.
 HOLD_FACTOR = 4.0
+#: m: a robot this much further off than the gap on an axis is out of reach for sure (the
+#: distances measured round by far less).
+_SURE_M = 1e-6
 #: The robot made way for is past once it is this many times (both radii + `AWAY_M`) closer to
 #: its goal than when it stuck, and as far from the spot aside.
 PASSED_FACTOR = 2.0
@@ -330,6 +334,10 @@ class MakeWay:
             for o in self.robots.values()
             if o is not robot and o is not stuck
         ]
+        # Each candidate is compared only with the robots within its gap on both axes (a
+        # hair more: `_SURE_M`); those further off on either axis cannot be within it.
+        table = np.array(others, dtype=float).reshape(-1, 3)
+        ox, oy, od = table[:, 0], table[:, 1], table[:, 2]
         for ring in RINGS:
             best, best_gap = None, -math.inf
             for k in range(DIRECTIONS):
@@ -342,7 +350,12 @@ class MakeWay:
                 gap = route.distance(spot)
                 if gap < away or gap <= best_gap:
                     continue
-                if any(math.hypot(x - ox, y - oy) < d for ox, oy, d in others):
+                close = np.flatnonzero(
+                    (np.abs(ox - x) < od + _SURE_M) & (np.abs(oy - y) < od + _SURE_M)
+                ).tolist()
+                if any(
+                    math.hypot(x - others[i][0], y - others[i][1]) < others[i][2] for i in close
+                ):
                     continue
                 if not self._reachable(robot, stuck, (x, y), past):
                     continue
@@ -378,8 +391,14 @@ class MakeWay:
         # depot was sent to a spot past one of them, 0.54 m from it, and never moved).
         spec = robot.spec
         gap = max(OTHERS_M, kept_gap(robot))
+        # Robots further off the way's bounding box on some axis than the gap (and a hair:
+        # `_SURE_M`) cannot be within it: they are passed over without measuring.
+        x0, y0, x1, y1 = leg.bounds
         for o in self.robots.values():
             if o is robot or (past and o is stuck):
+                continue
+            far = spec.radius + o.spec.radius + gap + _SURE_M
+            if o.x < x0 - far or o.x > x1 + far or o.y < y0 - far or o.y > y1 + far:
                 continue
             there = Point(o.x, o.y)
             now = there.distance(Point(robot.x, robot.y))

@@ -18,7 +18,14 @@ from shapely.geometry import LineString
 from fleet.plugins import Command, Observation, RobotSpec
 from fleet.plugins.robot import clip
 from fleet_plugins.follower.track import Track
-from fleet_plugins.follower.yielding import Detour, Forecast, braking_path, must_yield, stops_clear
+from fleet_plugins.follower.yielding import (
+    Detour,
+    Forecast,
+    bounds,
+    braking_path,
+    must_yield,
+    stops_clear,
+)
 
 if TYPE_CHECKING:
     from fleet.floor import Floor
@@ -95,8 +102,9 @@ class Guard:
             top = min(cap, spec.v_max)
             speed = min(max(abs(obs.vx), abs(obs.vy)), top)
             own = track.ahead(obs, dt, (2.0 * top - speed) / a_max + self.yield_s)
+            box = bounds(own)
             for f in higher:
-                if must_yield(own, f, spec.radius + f.radius + self.margin_m):
+                if must_yield(own, f, spec.radius + f.radius + self.margin_m, box):
                     return False
         now = (obs.t, obs.x, obs.y)
         # Round lower-priority blockers the detour keeps what it could (less than the gap when

@@ -39,6 +39,7 @@ __all__ = [
     "braking_path",
     "stops_clear",
     "must_yield",
+    "bounds",
     "Detour",
 ]
 
@@ -53,6 +54,9 @@ Sample = tuple[float, float, float]
 _REST = 1e-9  # per-axis speed (m/s) that counts as at rest
 _PARKED = 1e-6  # m: a plan that moves less than this over the yield window stands still
 _MAX_BRAKE_STEPS = 10_000  # a guard only: braking from any finite speed ends long before
+#: m: a neighbour this much further than the gap from a path's bounding box is out of reach
+#: for sure (the distances measured round by far less: a few 1e-14 m on a floor of 100 m).
+_SURE_M = 1e-6
 
 
 def braking_path(
@@ -86,7 +90,10 @@ class Forecast:
     segment `reach` (``(x0, y0, x1, y1)``: from its position to where one more step and then
     braking take it) grown by `slack` metres. One with a plan decides in the same tick as the
     observer, and the command it sends then can take it `lead` metres off what it planned
-    before the observer sees the new plan (`stops_clear` adds it to the gap).
+    before the observer sees the new plan (`stops_clear` adds it to the gap). `box` is
+    ``(x_min, y_min, x_max, y_max)`` of every point the forecast can name (`Forecast.of` sets
+    it; None: worked out when asked, `Forecast.bounds`): the checks pass over a neighbour out
+    of reach.
     """
 
     robot: str
@@ -99,13 +106,13 @@ class Forecast:
     reach: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     slack: float = 0.0
     lead: float = 0.0
+    box: tuple[float, float, float, float] | None = None
 
     @classmethod
     def of(cls, n: Neighbour, t: float, dt: float, a_max: float) -> Forecast:
         """The forecast of neighbour `n` seen at time `t`, for robots of period `dt` and
         acceleration bound `a_max` (the neighbour's own are unknown; the fleet's usually
         match)."""
-        brake = braking_path(t + dt, n.x + dt * n.vx, n.y + dt * n.vy, n.vx, n.vy, dt, a_max)
         # One step of unknown acceleration moves a robot at most a_max*dt**2 per axis further.
         slack = math.sqrt(2.0) * a_max * dt * dt
         if n.plan:
@@ -116,11 +123,24 @@ class Forecast:
             samples = ((t, n.x, n.y), *future)
             # It may brake in this same tick too: braking from the next tick on instead ends
             # one step further, and a robot behind it counting on that came too close.
-            now = braking_path(t, n.x, n.y, n.vx, n.vy, dt, a_max)
-            return cls(n.robot, n.radius, n.priority, n.x, n.y, samples, tuple(now), lead=slack)
+            now = tuple(braking_path(t, n.x, n.y, n.vx, n.vy, dt, a_max))
+            box = bounds(samples + now)
+            return cls(n.robot, n.radius, n.priority, n.x, n.y, samples, now, lead=slack, box=box)
         # No plan: one more step at its velocity, then braking (it brakes too), plus the slack.
+        brake = braking_path(t + dt, n.x + dt * n.vx, n.y + dt * n.vy, n.vx, n.vy, dt, a_max)
         reach = (n.x, n.y, brake[-1][1], brake[-1][2])
-        return cls(n.robot, n.radius, n.priority, n.x, n.y, (), (), reach, slack)
+        box = (min(n.x, reach[2]), min(n.y, reach[3]), max(n.x, reach[2]), max(n.y, reach[3]))
+        return cls(n.robot, n.radius, n.priority, n.x, n.y, (), (), reach, slack, box=box)
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(x_min, y_min, x_max, y_max)`` of every point `at` and `distance` measure from:
+        the plan's and the braking samples, or the `reach` segment (without its `slack`)."""
+        if self.box is not None:
+            return self.box
+        if self.samples:
+            return bounds(self.samples + self.brake)
+        x0, y0, x1, y1 = self.reach
+        return min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)
 
     @property
     def has_plan(self) -> bool:
@@ -151,6 +171,8 @@ def stops_clear(
     margin: float,
     now: tuple[float, float, float],
     gaps: Mapping[str, float] | None = None,
+    *,
+    prune: bool = True,
 ) -> bool:
     """Rule 1: whether braking trajectory `path` keeps clear of every neighbour.
 
@@ -165,8 +187,14 @@ def stops_clear(
     through ``now = (t, x, y)`` square to the direction away from it). Two robots that both keep
     this rule never close in, whatever they do at the same time, and a robot can always move
     away.
+
+    With `prune` (the default) a neighbour whose `Forecast.bounds` lie further than the gap
+    from the path's on some axis is passed over without measuring each sample: no distance
+    measured could be within the gap (`_SURE_M` covers the rounding), so the answer is the
+    same as without.
     """
     _, x, y = now
+    box = bounds(path) if prune and path else None
     for f in forecasts:
         if gaps is not None and f.robot in gaps:
             # Lower in priority and closer than its own gap plus lead, it keeps the half-plane
@@ -180,13 +208,22 @@ def stops_clear(
                 if (sx - x) * ux + (sy - y) * uy < -1e-12:
                     return False
             continue
+        if box is not None and _apart(box, f.bounds()) > need + f.slack + _SURE_M:
+            continue
         for ts, sx, sy in path:
             if f.distance(ts, sx, sy) <= need:
                 return False
     return True
 
 
-def must_yield(own: Sequence[Sample], higher: Forecast, gap: float) -> bool:
+def must_yield(
+    own: Sequence[Sample],
+    higher: Forecast,
+    gap: float,
+    own_box: tuple[float, float, float, float] | None = None,
+    *,
+    prune: bool = True,
+) -> bool:
     """Rule 2: whether a robot should wait for the higher-priority neighbour `higher`.
 
     `own` is the robot's intended trajectory over the yield window (its path if it goes on,
@@ -200,9 +237,17 @@ def must_yield(own: Sequence[Sample], higher: Forecast, gap: float) -> bool:
     its way; and a neighbour whose plan stands still over the whole window is parked, and
     waiting at a distance for it would hide the deadlock from the engine, which looks for
     robots stuck close together.
+
+    With `prune` (the default) a plan whose `Forecast.bounds` lie further than `gap` from
+    those of `own` (`own_box`, worked out when None) on some axis is no reason to yield,
+    without sampling it: the same answer as sampling.
     """
     if not higher.has_plan:
         return False
+    if prune and own:
+        box = own_box if own_box is not None else bounds(own)
+        if _apart(box, higher.bounds()) > gap + _SURE_M:
+            return False
     theirs = [higher.at(t) for t, _, _ in own]
     x0, y0 = theirs[0]
     if all(abs(x - x0) <= _PARKED and abs(y - y0) <= _PARKED for x, y in theirs):
@@ -317,6 +362,19 @@ def _along_samples(s: Sequence[Sample], t: float) -> tuple[float, float]:
             f = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
             return x0 + f * (x1 - x0), y0 + f * (y1 - y0)
     return s[-1][1], s[-1][2]
+
+
+def bounds(samples: Sequence[Sample]) -> tuple[float, float, float, float]:
+    """``(x_min, y_min, x_max, y_max)`` of `samples` (not empty)."""
+    xs = [p[1] for p in samples]
+    ys = [p[2] for p in samples]
+    return min(xs), min(ys), max(xs), max(ys)
+
+
+def _apart(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> float:
+    """How far apart boxes `a` and `b` lie on the axis where they lie furthest (<= 0 when
+    they overlap): no point of one is closer than that to a point of the other."""
+    return max(b[0] - a[2], a[0] - b[2], b[1] - a[3], a[1] - b[3])
 
 
 def _to_segment(px: float, py: float, x0: float, y0: float, x1: float, y1: float) -> float:
