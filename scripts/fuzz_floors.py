@@ -227,11 +227,19 @@ class Case:
         return folder
 
 
-def generate_case(seed: int, index: int, controller: str = "both", quick: bool = False) -> Case:
+def generate_case(
+    seed: int,
+    index: int,
+    controller: str = "both",
+    quick: bool = False,
+    mpc_options: dict[str, Any] | None = None,
+) -> Case:
     """Case `index` of master seed `seed` (the same pair always gives the same case).
 
     `quick`: a small fleet (1-3 robots, the MPC 1-2) and a short run (the test suite's sample;
-    other draws as usual, but the stream differs from the full cases').
+    other draws as usual, but the stream differs from the full cases'). `mpc_options`: MPC
+    controller options written into an MPC case's scenario (no draw depends on them, so the
+    floors and fleets are the same with and without).
     """
     rng = random.Random(f"fuzz-floors/{seed}/{index}" + ("/quick" if quick else ""))
     if controller == "both":
@@ -417,7 +425,8 @@ def generate_case(seed: int, index: int, controller: str = "both", quick: bool =
             "period_s": period,
             "return_home": rng.random() < 0.7,
         },
-        "controller": {"name": controller},
+        "controller": {"name": controller}
+        | ({"options": dict(mpc_options)} if mpc and mpc_options else {}),
         "dispatcher": {"name": rng.choice(["greedy", "greedy", "auction"])},
     }
     printing = rng.random() < 0.3
@@ -987,11 +996,14 @@ def run_folder(folder: Path, name: str = "", controller: str = "", note: str = "
     return out
 
 
-def run_case(args: tuple[int, int, str, str, bool]) -> Outcome:
+def run_case(
+    args: tuple[int, int, str, str, bool] | tuple[int, int, str, str, bool, dict[str, Any]],
+) -> Outcome:
     """Generate case (seed, index) into a scratch folder, run and judge it; on findings copy
     the folder to `out`. A module-level function, so worker processes can take it."""
-    seed, index, controller, out_dir, quick = args
-    case = generate_case(seed, index, controller, quick)
+    seed, index, controller, out_dir, quick = args[:5]
+    mpc_options: dict[str, Any] = args[5] if len(args) > 5 else {}  # type: ignore[misc]
+    case = generate_case(seed, index, controller, quick, mpc_options)
     with tempfile.TemporaryDirectory(prefix="fuzz-floors-") as tmp:
         folder = case.write(Path(tmp) / case.name)
         outcome = run_folder(folder, case.name, case.controller, case.note)
@@ -1001,6 +1013,7 @@ def run_case(args: tuple[int, int, str, str, bool]) -> Outcome:
                 shutil.rmtree(dest)
             shutil.copytree(folder, dest)
             flags = f"--controller {controller} " + ("--quick " if quick else "")
+            flags += "".join(f"--mpc-option {k}={v!r} " for k, v in mpc_options.items())
             write_findings(dest, outcome, f"{flags}--seed {seed} --only {index}")
     return outcome
 
@@ -1171,11 +1184,14 @@ def fuzz(
     first: int = 0,
     show: bool = True,
     quick: bool = False,
+    mpc_options: dict[str, Any] | None = None,
 ) -> Tally:
-    """Generate, run and judge `floors` cases (indices first .. first + floors - 1)."""
+    """Generate, run and judge `floors` cases (indices first .. first + floors - 1), MPC cases
+    with `mpc_options` as controller options."""
     out_dir.mkdir(parents=True, exist_ok=True)
     tally = Tally()
-    tasks = [(seed, i, controller, str(out_dir), quick) for i in range(first, first + floors)]
+    opts = dict(mpc_options or {})
+    tasks = [(seed, i, controller, str(out_dir), quick, opts) for i in range(first, first + floors)]
     progress = _progress(floors) if show else None
     if progress is not None:
         next(progress)
@@ -1231,7 +1247,27 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--case", type=Path, help="rerun and judge one case folder instead")
     ap.add_argument("--write", type=Path, help="with --only: write the case folder here, not run")
     ap.add_argument("--quick", action="store_true", help="small fleets, short runs (the tests')")
+    ap.add_argument(
+        "--mpc-option",
+        action="append",
+        default=[],
+        type=_mpc_option,
+        metavar="KEY=VALUE",
+        help="an MPC controller option for the MPC cases (a TOML value: reuse_ticks=4); repeat",
+    )
     return ap
+
+
+def _mpc_option(text: str) -> tuple[str, Any]:
+    """``key=value`` with a TOML value (``reuse_ticks=4``, ``cost="quadratic"``)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"--mpc-option {text!r}: expected KEY=VALUE")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()  # a bare word: a string
+    return key.strip(), parsed
 
 
 def main(argv: Iterable[str] | None = None) -> int:
@@ -1247,13 +1283,16 @@ def main(argv: Iterable[str] | None = None) -> int:
         return 1 if o.status == "failed" else 0
     if args.only is not None:
         if args.write is not None:
-            case = generate_case(args.seed, args.only, args.controller, args.quick)
+            case = generate_case(
+                args.seed, args.only, args.controller, args.quick, dict(args.mpc_option)
+            )
             print(case.write(args.write / case.name), case.note)
             return 0
         args.first, args.floors = args.only, 1
     print(
         f"fuzz floors: {args.floors} floors from index {args.first}, seed {args.seed}, "
         f"controller {args.controller}, {args.workers} worker(s); failing cases to {args.out}"
+        + (f"; MPC options {dict(args.mpc_option)}" if args.mpc_option else "")
     )
     start = time.perf_counter()
     tally = fuzz(
@@ -1264,6 +1303,7 @@ def main(argv: Iterable[str] | None = None) -> int:
         args.workers,
         args.first,
         quick=args.quick,
+        mpc_options=dict(args.mpc_option),
     )
     print(report(tally, args.out, time.perf_counter() - start))
     return 1 if any(o.status == "failed" for o in tally.outcomes) else 0

@@ -113,6 +113,23 @@ def test_the_generator_is_reproducible_and_writes_cases_the_oracle_reads(tmp_pat
     assert model.stations and model.boundary.area > 0
 
 
+def test_mpc_options_reach_only_the_mpc_cases_and_change_no_draw():
+    # `--mpc-option reuse_ticks=4`: the same floor and fleet, the option in the MPC scenario.
+    plain, tuned = fz.generate_case(41, 3, "mpc"), fz.generate_case(41, 3, "mpc", False, {"a": 4})
+    assert fz.dump_toml(plain.floor) == fz.dump_toml(tuned.floor)
+    assert tuned.scen["controller"] == {"name": "mpc", "options": {"a": 4}}
+    assert "options" not in plain.scen["controller"]
+    assert {k: v for k, v in tuned.scen.items() if k != "controller"} == {
+        k: v for k, v in plain.scen.items() if k != "controller"
+    }
+    follower = fz.generate_case(41, 3, "follower", False, {"a": 4})
+    assert "options" not in follower.scen["controller"]
+    args = fz.parser().parse_args(["--mpc-option", "reuse_ticks=4", "--mpc-option", 'cost="l1"'])
+    assert dict(args.mpc_option) == {"reuse_ticks": 4, "cost": "l1"}
+    with pytest.raises(SystemExit):
+        fz.parser().parse_args(["--mpc-option", "reuse_ticks"])
+
+
 def test_a_clean_trajectory_passes(oracle):
     run = record({"r1": line(0, 0.25, (15, 2), (15, 8), 40)}, v_max=1.0)
     assert oracle.judge(run) == []

@@ -279,7 +279,9 @@ def test_a_cap_at_the_start_of_a_trip_does_not_make_the_first_solves_infeasible(
     # A region boundary (a 0.8 m/s zone) 1 m ahead; 0.2 m/s for the first 30 s.
     floor = corridor((3.0, 6.0), limit=0.8)
     caps = CapSchedule(((0.0, 30.0, 0.2),))
-    loop = Loop.start(MPCController(horizon=8), floor, (2.0, 2.0), SPEC_HALF, caps=caps)
+    # Every tick solves (reuse_ticks = 0): each of the first solves is checked.
+    controller = MPCController(horizon=8, reuse_ticks=0)
+    loop = Loop.start(controller, floor, (2.0, 2.0), SPEC_HALF, caps=caps)
     for _ in range(10):
         loop.step((18.0, 2.0))
     assert loop.violations() == []
@@ -337,7 +339,8 @@ def test_a_tiny_time_limit_falls_back_every_tick_and_stays_safe(interface: str) 
 def test_a_failed_solve_on_the_plan_walks_down_the_shifted_plan_to_rest(interface: str) -> None:
     dt, goal = SPEC_HALF.period, (18.0, 2.0)
     # No warm start: otherwise the shifted plan is HiGHS's incumbent and the solve "succeeds".
-    controller = MPCController(horizon=8, warm_start=False, interface=interface)
+    # reuse_ticks = 0: a tick that followed its plan would not solve, so not fail.
+    controller = MPCController(horizon=8, warm_start=False, interface=interface, reuse_ticks=0)
     loop = Loop.start(controller, CORRIDOR, (2.0, 2.0), SPEC_HALF)
     for _ in range(6):
         assert loop.step(goal).status is ControlStatus.OK
@@ -382,7 +385,7 @@ def test_a_failed_solve_off_the_plan_brakes_along_the_line_of_travel() -> None:
 @pytest.mark.parametrize("limit", ["nodes", "wall clock"])
 def test_with_a_warm_start_a_starved_solve_keeps_the_shifted_plan_as_its_answer(limit: str) -> None:
     goal = (18.0, 2.0)
-    controller = MPCController(horizon=8, warm_start=True, interface="direct")
+    controller = MPCController(horizon=8, warm_start=True, interface="direct", reuse_ticks=0)
     loop = Loop.start(controller, CORRIDOR, (2.0, 2.0), SPEC_HALF)
     for _ in range(6):
         loop.step(goal)
@@ -670,7 +673,7 @@ def test_a_solve_does_not_depend_on_how_long_the_trip_has_been_solving() -> None
     # the trip's solves added up to the time limit it dropped such a start, so from then on a
     # step searched differently, and when that began depended on the wall clock (fleet runs
     # diverged). The same step, solved until well past the limit, must search alike.
-    controller = MPCController(horizon=12)
+    controller = MPCController(horizon=12, reuse_ticks=0)  # the same trip as when written
     loop = Loop.start(controller, l_hall(zone=True), (2.0, 5.0))
     goal = (18.0, 5.0)
     for _ in range(22):  # past the machine, at a step where the start saves a node
@@ -701,7 +704,9 @@ def test_a_solve_does_not_depend_on_how_long_the_trip_has_been_solving() -> None
 @pytest.mark.parametrize("interface", ["direct", "pyomo"])
 def test_every_command_while_driving_reports_an_optimal_solve(interface: str) -> None:
     goal = (18.0, 5.0)
-    loop = Loop.start(MPCController(horizon=8, interface=interface), L_HALL, (2.0, 5.0), SPEC_1S)
+    # reuse_ticks = 0: every tick solves (a reused plan's command has no report).
+    controller = MPCController(horizon=8, interface=interface, reuse_ticks=0)
+    loop = Loop.start(controller, L_HALL, (2.0, 5.0), SPEC_1S)
     assert loop.drive(goal, limit=80)
     driving = list(loop.commands)
     for cmd in driving:

@@ -137,6 +137,7 @@ def test_a_fleet_reusing_plans_is_safe_and_the_same_with_0_and_2_workers() -> No
     # violation, and fewer solves than the same fleet solving every tick.
     base = mpc_fleet_scenario()  # the shipped fleet.toml, 6 robots, 120 s, "mpc"
     reusing = replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 4}))
+    base = replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 0}))
     results = [World(reusing, workers=w).run() for w in (0, 2)]
     summaries = [r.summary for r in results]
     for result, s in zip(results, summaries, strict=True):
