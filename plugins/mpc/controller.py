@@ -253,12 +253,12 @@ class MPCController(Controller):
         spec = self.context.spec
         if obs.goal is None:
             self._goal = self._trip = self._model = self._last = None
-            return brake(obs, spec, self.horizon, ControlStatus.IDLE)
+            return brake(obs, spec, self.horizon, ControlStatus.IDLE, self.context.floor)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
         if parked(obs, goal, spec.radius):
             return park(obs, spec, self.horizon)  # at rest on the goal: staying is optimal
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
-            return brake(obs, spec, self.horizon, ControlStatus.FALLBACK)
+            return brake(obs, spec, self.horizon, ControlStatus.FALLBACK, self.context.floor)
         assert self._trip is not None and self._model is not None
         hold = self.respect_priority and self.avoid_robots
         hold = hold and must_hold(obs, spec, self.horizon, self.separation_margin_m)
@@ -268,7 +268,7 @@ class MPCController(Controller):
         # braking path runs into a robot standing still (it may be held too, and not give way).
         if hold and not brake_runs_into(obs, spec, self.horizon):
             self._last = None
-            return brake(obs, spec, self.horizon, ControlStatus.OK)
+            return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
         self._reused = 0
         data, warm = self._step_data(obs)
         solution, separation = self._solve(obs, data, warm)
@@ -462,5 +462,7 @@ class MPCController(Controller):
             self._last, self._last_t = shifted, obs.t
             return command
         self._last = None
-        cmd = brake(obs, self.context.spec, self.horizon, ControlStatus.FALLBACK)
+        cmd = brake(
+            obs, self.context.spec, self.horizon, ControlStatus.FALLBACK, self.context.floor
+        )
         return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report)
