@@ -1,11 +1,13 @@
-"""Braking without a plan (plugins/mpc/fallback.py `brake`) stays in the free space, judged with
-shapely from the obstacle's own polygon: the case a fuzz floor found (s41-0109), a robot held
-while skimming a rotated wall, and random approaches to that wall."""
+"""When the MPC has no plan to follow (plugins/mpc/fallback.py): braking stays in the free space,
+judged with shapely from the obstacle's own polygon (the case a fuzz floor found, s41-0109: a
+robot held while skimming a rotated wall, and random approaches to that wall); a plan that keeps
+a robot where it is, off its goal with nobody about, is a trap (`stays_put`, s41-0086)."""
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import shapely
 from hypothesis import assume, event, given, settings
@@ -13,9 +15,9 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, Polygon, box
 
 from fleet.floor import FloorSpec, Obstacle, compile_floor
-from fleet.plugins import ControlStatus, Observation, RobotSpec
+from fleet.plugins import ControlStatus, Neighbour, Observation, RobotSpec
 from fleet.plugins.robot import DoubleIntegrator
-from fleet_plugins.mpc.fallback import brake
+from fleet_plugins.mpc.fallback import brake, stays_put
 
 #: The wall of fuzz floor s41-0109 (a thin band at -36 degrees) and that run's robot.
 WALL = Polygon([(33.6621, 46.4239), (26.883, 51.382), (26.7062, 51.1403), (33.4853, 46.1822)])
@@ -94,3 +96,27 @@ def test_braking_near_the_wall_never_enters_it(along, off, speed, angle) -> None
     clear = RADIUS - 1e-6
     event("straight clear" if straight >= clear else "rescued")
     assert ours >= clear, (ours, straight)
+
+
+# --- a plan that keeps the robot where it is --------------------------------------------------
+
+
+def at(x: float, y: float, **kw) -> Observation:
+    return Observation("r02", 0, 0.0, x, y, kw.pop("vx", 0.0), kw.pop("vy", 0.0), **kw)
+
+
+def test_a_plan_that_keeps_a_robot_at_rest_off_its_goal_with_nobody_about_stays_put() -> None:
+    # Fuzz s41-0086: pushed off its reference, the robot's every solve was optimal and kept
+    # it where it was, 3.6 m from the reference, for the last 90 s; such a plan now starts a
+    # new trip from there (the case then delivers all 4 jobs).
+    here = np.array([[28.0, 49.0]] * (HORIZON + 1))
+    goal = (20.0, 45.0)
+    assert stays_put(at(28.0, 49.0), here, goal, RADIUS)
+    moving = here.copy()
+    moving[1:, 0] += 0.01
+    assert not stays_put(at(28.0, 49.0), moving, goal, RADIUS)  # the plan moves it
+    assert not stays_put(at(28.0, 49.0, vx=0.1), here, goal, RADIUS)  # not at rest
+    assert not stays_put(at(28.0, 49.0), here, (28.2, 49.1), RADIUS)  # on its goal
+    assert not stays_put(at(28.0, 49.0, speed_cap=0.0), here, goal, RADIUS)  # held by a cap
+    other = Neighbour("r01", 30.0, 49.0, 0.0, 0.0, RADIUS, 1, ())
+    assert not stays_put(at(28.0, 49.0, neighbours=(other,)), here, goal, RADIUS)  # waits

@@ -31,6 +31,7 @@ __all__ = [
     "plan_points",
     "brake",
     "braking_path",
+    "stays_put",
     "park",
 ]
 
@@ -46,6 +47,8 @@ _RATE_PAIRS = sorted(
 )
 #: Steps enough for any braking path to reach rest (checked to the end, not the horizon).
 _TO_REST = 100_000
+#: A plan whose every point is within this (m) of the robot keeps it where it is.
+STILL_M = 1e-6
 
 
 def follow_previous(
@@ -126,6 +129,22 @@ def brake(
                 path = other
                 break
     return Command(ax, ay, status, path[: horizon + 1] if obs.neighbours else ())
+
+
+def stays_put(obs: Observation, p: np.ndarray, goal: tuple[float, float], radius: float) -> bool:
+    """Whether plan `p` (``(N+1, 2)``) keeps the robot, at rest more than `radius` from its
+    `goal` with no robot in sight and no print cap holding it, where it is. Nothing changes
+    such a tick's solve, so it would stay for good (fuzz s41-0086: a robot pushed off its
+    reference to the edge of a region from which the regions round its reference led nowhere
+    within the horizon stood still, every solve optimal, for the last 90 s): the caller plans
+    a new trip from where the robot is."""
+    if obs.neighbours or max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
+        return False
+    if obs.speed_cap is not None and obs.speed_cap <= 0.0:
+        return False
+    if math.hypot(goal[0] - obs.x, goal[1] - obs.y) <= radius:
+        return False
+    return bool(np.all(np.abs(np.asarray(p) - np.array([obs.x, obs.y])) <= STILL_M))
 
 
 def braking_path(
