@@ -139,6 +139,32 @@ def test_the_wait_aside_ends_once_the_other_is_at_rest_on_its_goal_not_driving_t
         stuck.x, stuck.y, stuck.vx = 13.5, 10.0, 0.0
 
 
+def test_the_wait_aside_lasts_until_the_other_has_arrived_as_the_run_counts_arrival(
+    world: World,
+) -> None:
+    # Fuzz s61-0236: an MPC robot stopped 0.057 m from its station, inside `ARRIVED_M` but
+    # outside the run's 0.05 m tolerance; the robot it had sent aside came straight back and
+    # kept it out of the last 7 mm for 90 s.
+    idle, stuck = world.robots["r01"], world.robots["r02"]
+    hx, hy = stuck.home
+    idle.x, idle.y, stuck.x, stuck.y = hx + 2.5, hy, hx + 1.0, hy
+    idle.aside, idle.job, stuck.job = None, None, None
+    stuck.return_home = True
+    stuck.watched_goal = stuck.home
+    w = world
+    make_way = MakeWay(w.floor, w.robots, w.recorder, w.planner_for, 10.0, arrival_m=0.05)
+    assert make_way.arrival_m == 0.05
+    make_way.ask(stuck, stuck.home, [idle], t=0.0)
+    spot = idle.aside.spot
+    try:
+        stuck.x, stuck.vx = hx + 0.057, 0.0  # at rest, not yet arrived
+        assert make_way.goal_of(idle, 1.0) == spot
+        stuck.x = hx + 0.04  # arrived
+        assert make_way.goal_of(idle, 1.0) == idle.home
+    finally:
+        stuck.x, stuck.y, stuck.vx = 13.5, 10.0, 0.0
+
+
 @pytest.fixture(scope="module")
 def world3() -> World:
     # At a period of 0.8 s the step a robot may take unseen is 0.45 m: the gaps are wider.

@@ -174,7 +174,12 @@ class World:
             self.dispatch,
         )
         make_way = MakeWay(
-            self.floor, self.robots, self.recorder, self.planner_for, scenario.deadlock_after_s
+            self.floor,
+            self.robots,
+            self.recorder,
+            self.planner_for,
+            scenario.deadlock_after_s,
+            scenario.arrival_tolerance_m,
         )
         self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning, make_way)
         rounds = PipelinedRounds if scenario.bus.lockstep == "pipelined" else BusRounds
