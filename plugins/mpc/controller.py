@@ -36,13 +36,14 @@ from fleet_plugins.mpc.model import Solution, StepData, TripModel
 from fleet_plugins.mpc.neighbours import (
     brake_runs_into,
     clear_of_neighbours,
+    must_announce,
     must_hold,
     robots_to_avoid,
 )
 from fleet_plugins.mpc.options import DEFAULT_MAX_NODES, check_horizon, check_options
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, within_caps
-from fleet_plugins.mpc.separation import Obstacle, Separation, spans
+from fleet_plugins.mpc.separation import Obstacle, Separation, at_rest, spans
 from fleet_plugins.mpc.trip import Trip
 
 __all__ = ["MPCController"]
@@ -232,6 +233,8 @@ class MPCController(Controller):
         self._progress = 0
         self._failed: tuple[Any, ...] | None = None
         self._reused = 0  # ticks the latest solved plan has been followed without a solve
+        #: The tick time whose published plan showed this robot moving from the next tick on.
+        self._shown_moving_t = math.nan
         #: Ticks that followed the previous plan instead of solving (`reuse_ticks`).
         self.reuses = 0
         #: Trips built so far (a new goal or a fallback starts one).
@@ -285,11 +288,34 @@ class MPCController(Controller):
         report = SolveReport(solution.outcome, solution.solver_s, step_s)
         if solution.outcome.usable:
             assert solution.p is not None and solution.u is not None
+            moves = not at_rest(solution.p[1:])
+            if moves and self._announce(obs):
+                return self._announced(obs, solution.p, report)
+            if moves:
+                self._shown_moving_t = obs.t
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
             plan = plan_points(obs.t, solution.p, spec.period)
             u = solution.u[0]
             return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
         return self._fallback(obs, report)
+
+    def _announce(self, obs: Observation) -> bool:
+        """Whether this robot, at rest and seen at rest by the others, must show its start one
+        tick before it moves (`neighbours.must_announce`)."""
+        if not (self.respect_priority and self.avoid_robots and obs.neighbours):
+            return False
+        spec = self.context.spec
+        if abs(obs.t - self._shown_moving_t - spec.period) <= 1e-9:
+            return False  # its last plan already showed it moving: the others hold for it
+        return must_announce(obs, spec, self.separation_margin_m)
+
+    def _announced(self, obs: Observation, p: np.ndarray, report: SolveReport) -> Command:
+        """Stay at rest this tick and publish plan `p` one tick late (it starts next tick)."""
+        dt = self.context.spec.period
+        self._last = None
+        self._shown_moving_t = obs.t
+        late = ((obs.t, obs.x, obs.y),) + plan_points(obs.t + dt, p, dt)
+        return Command(-obs.vx / dt + 0.0, -obs.vy / dt + 0.0, ControlStatus.OK, late, report)
 
     def _reusable(self, obs: Observation, hold: bool = False) -> bool:
         """Whether the previous plan, one step on, may be followed instead of a solve (with
@@ -322,6 +348,8 @@ class MPCController(Controller):
         self.reuses += 1
         last = self._last
         assert last.p is not None and last.u is not None
+        if not at_rest(last.p[1:]):
+            self._shown_moving_t = obs.t
         plan = plan_points(obs.t, last.p, self.context.spec.period)
         return Command(float(last.u[0, 0]), float(last.u[0, 1]), ControlStatus.OK, plan)
 
