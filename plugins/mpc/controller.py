@@ -30,7 +30,14 @@ from fleet.plugins import (
     SolverOutcome,
 )
 from fleet_plugins.mpc.crowd import solve_clear
-from fleet_plugins.mpc.fallback import brake, follow_previous, park, plan_points, shifted
+from fleet_plugins.mpc.fallback import (
+    brake,
+    follow_previous,
+    park,
+    plan_points,
+    shifted,
+    stays_put,
+)
 from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
 from fleet_plugins.mpc.neighbours import (
@@ -103,9 +110,10 @@ class MPCController(Controller):
     When a solve gives no usable solution (node limit without incumbent, the wall-clock guard,
     infeasible, solver error) the controller falls back: the previous plan shifted by one step if
     the robot is on it and it keeps clear of every neighbour's predicted position, between the
-    steps too (it ends at rest, so it stays safe to its end), else braking along the line of travel
-    (with neighbours about, the command's plan is then the braking path, so that they avoid it). It
-    then plans a new trip. Every command carries a `SolveReport`.
+    steps too (it ends at rest), else braking (`fallback.brake`: kept in the free space; with
+    neighbours about, its path is the plan). It then plans a new trip, as it does after a plan that
+    keeps it at rest off its goal with nobody about (`fallback.stays_put`). Each solved tick's
+    command carries a `SolveReport`.
 
     Parameters
     ----------
@@ -208,10 +216,9 @@ class MPCController(Controller):
         return (
             f"MPCController(horizon={self.horizon}, weights={self.weights}, "
             f"corridor={self.corridor}, time_limit_s={self.time_limit_s}, "
-            f"max_nodes={self.max_nodes}, "
-            f"warm_start={self.warm_start}, interface={self.interface.value!r}, "
-            f"cost={self.cost!r}, avoid_robots={self.avoid_robots}, "
-            f"separation_margin_m={self.separation_margin_m}, "
+            f"max_nodes={self.max_nodes}, warm_start={self.warm_start}, "
+            f"interface={self.interface.value!r}, cost={self.cost!r}, "
+            f"avoid_robots={self.avoid_robots}, separation_margin_m={self.separation_margin_m}, "
             f"max_neighbours={self.max_neighbours}, respect_priority={self.respect_priority}, "
             f"reuse_ticks={self.reuse_ticks})"
         )
@@ -254,12 +261,12 @@ class MPCController(Controller):
         spec = self.context.spec
         if obs.goal is None:
             self._goal = self._trip = self._model = self._last = None
-            return brake(obs, spec, self.horizon, ControlStatus.IDLE)
+            return brake(obs, spec, self.horizon, ControlStatus.IDLE, self.context.floor)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
         if parked(obs, goal, spec.radius):
             return park(obs, spec, self.horizon)  # at rest on the goal: staying is optimal
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
-            return brake(obs, spec, self.horizon, ControlStatus.FALLBACK)
+            return brake(obs, spec, self.horizon, ControlStatus.FALLBACK, self.context.floor)
         assert self._trip is not None and self._model is not None
         hold = self.respect_priority and self.avoid_robots
         hold = hold and must_hold(obs, spec, self.horizon, self.separation_margin_m)
@@ -269,7 +276,7 @@ class MPCController(Controller):
         # braking path runs into a robot standing still (it may be held too, and not give way).
         if hold and not brake_runs_into(obs, spec, self.horizon):
             self._last = None
-            return brake(obs, spec, self.horizon, ControlStatus.OK)
+            return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
         self._reused = 0
         data, warm = self._step_data(obs)
         solution, separation = self._solve(obs, data, warm)
@@ -287,8 +294,9 @@ class MPCController(Controller):
         if solution.outcome.usable:
             assert solution.p is not None and solution.u is not None
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
-            # Its first input and plan; or, setting off next to a higher robot, shown first.
-            return self._go.command(obs, spec, solution.p, solution.u[0], report)
+            if stays_put(obs, solution.p, goal, spec.radius):
+                self._model = None  # a trap nothing else ends: a new trip from here
+            return self._go.command(obs, spec, solution.p, solution.u[0], report)  # (`start`)
         return self._fallback(obs, report)
 
     def _reusable(self, obs: Observation, hold: bool = False) -> bool:
@@ -462,6 +470,6 @@ class MPCController(Controller):
             command, shifted = follow_previous(obs, self._last, self.context.spec.period, report)
             self._last, self._last_t = shifted, obs.t
             return command
-        self._last = None
-        cmd = brake(obs, self.context.spec, self.horizon, ControlStatus.FALLBACK)
+        self._last, spec = None, self.context.spec
+        cmd = brake(obs, spec, self.horizon, ControlStatus.FALLBACK, self.context.floor)
         return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report)

@@ -3,13 +3,23 @@
 The previous plan ends at rest inside the regions it was planned in, so a run of fallbacks that
 follow it (`follow_previous`) walks it down to a stop. Otherwise the robot brakes along its
 line of travel (`brake`); with other robots about, the braking path is its plan
-(`braking_path`), so that they avoid where it stops rather than where it was heading.
+(`braking_path`), so that they avoid where it stops rather than where it was heading. Given
+the floor, a braking path that would leave the free space (a robot skimming a wall at an angle)
+is replaced by one that brakes the axes at other rates and stays in it (`BRAKE_RATES`).
 """
 
 from __future__ import annotations
 
-import numpy as np
+import functools
+import itertools
+import math
 
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Point
+from shapely.geometry.base import BaseGeometry
+
+from fleet.floor import BOUNDARY_BAND, Floor
 from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveReport
 from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet_plugins.mpc.model import Solution
@@ -21,11 +31,24 @@ __all__ = [
     "plan_points",
     "brake",
     "braking_path",
+    "stays_put",
     "park",
 ]
 
 #: Per-axis speed (m/s) below which the robot counts as at rest.
 REST_SPEED = 1e-9
+#: Fractions of a_max each axis may brake at when braking along the line of travel would leave
+#: the free space: every pair with one axis at the full rate is tried, hardest first. A pair
+#: kept from tick to tick follows the same path, so once one is found it stays available.
+BRAKE_RATES = (1.0, 0.75, 0.5, 0.25)
+_RATE_PAIRS = sorted(
+    {(a, b) for a, b in itertools.product(BRAKE_RATES, repeat=2) if max(a, b) == 1.0},
+    key=lambda r: (-(r[0] + r[1]), r),
+)
+#: Steps enough for any braking path to reach rest (checked to the end, not the horizon).
+_TO_REST = 100_000
+#: A plan whose every point is within this (m) of the robot keeps it where it is.
+STILL_M = 1e-6
 
 
 def follow_previous(
@@ -71,35 +94,106 @@ def park(obs: Observation, spec: RobotSpec, horizon: int) -> Command:
     return Command(-obs.vx / dt + 0.0, -obs.vy / dt + 0.0, ControlStatus.OK, plan)
 
 
-def brake(obs: Observation, spec: RobotSpec, horizon: int, status: ControlStatus) -> Command:
+def brake(
+    obs: Observation,
+    spec: RobotSpec,
+    horizon: int,
+    status: ControlStatus,
+    floor: Floor | None = None,
+) -> Command:
     """Brake along the line of travel; with other robots about, the braking path is the
     plan (else they would keep avoiding the last plan, which runs on past the stop), and at
     rest a plan that stays where it is (an empty plan leaves the last one in force: a robot
     held at rest went on being seen along its old plan, moving away, and a lower robot drove
-    into where it stood, 0.73 m apart with radii 0.4, in the 80-robot fleet)."""
+    into where it stood, 0.73 m apart with radii 0.4, in the 80-robot fleet).
+
+    Given the `floor`, a braking path that leaves its free space gives way to the first path
+    braking the axes at `BRAKE_RATES` that stays in it (a robot held while skimming a wall
+    at an angle braked straight on 0.6 mm into it, and stood there: fuzz s41-0109); with
+    none, the robot brakes along its line of travel all the same.
+    """
     if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
         if not obs.neighbours:
             return Command(0.0, 0.0, status)
         end = obs.t + horizon * spec.period
         return Command(0.0, 0.0, status, ((obs.t, obs.x, obs.y), (end, obs.x, obs.y)))
-    ax, ay = brake_input(obs.vx, obs.vy, spec.period, spec.a_max)
-    plan: tuple[tuple[float, float, float], ...] = ()
-    if obs.neighbours:
-        plan = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, spec.period, spec.a_max, horizon)
-    return Command(ax, ay, status, plan)
+    dt, a_max = spec.period, spec.a_max
+    ax, ay = brake_input(obs.vx, obs.vy, dt, a_max)
+    # Checked all the way to rest; published for the horizon, as plans are.
+    path = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, a_max, _TO_REST)
+    if floor is not None and not _stays_free(floor, path):
+        for rates in _RATE_PAIRS:
+            other = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, a_max, _TO_REST, rates)
+            if _stays_free(floor, other):
+                ax, ay = _axis_brake(obs.vx, obs.vy, dt, a_max, rates)
+                path = other
+                break
+    return Command(ax, ay, status, path[: horizon + 1] if obs.neighbours else ())
+
+
+def stays_put(obs: Observation, p: np.ndarray, goal: tuple[float, float], radius: float) -> bool:
+    """Whether plan `p` (``(N+1, 2)``) keeps the robot, at rest more than `radius` from its
+    `goal` with no robot in sight and no print cap holding it, where it is. Nothing changes
+    such a tick's solve, so it would stay for good (fuzz s41-0086: a robot pushed off its
+    reference to the edge of a region from which the regions round its reference led nowhere
+    within the horizon stood still, every solve optimal, for the last 90 s): the caller plans
+    a new trip from where the robot is."""
+    if obs.neighbours or max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
+        return False
+    if obs.speed_cap is not None and obs.speed_cap <= 0.0:
+        return False
+    if math.hypot(goal[0] - obs.x, goal[1] - obs.y) <= radius:
+        return False
+    return bool(np.all(np.abs(np.asarray(p) - np.array([obs.x, obs.y])) <= STILL_M))
 
 
 def braking_path(
-    t: float, x: float, y: float, vx: float, vy: float, dt: float, a_max: float, steps: int
+    t: float,
+    x: float,
+    y: float,
+    vx: float,
+    vy: float,
+    dt: float,
+    a_max: float,
+    steps: int,
+    rates: tuple[float, float] | None = None,
 ) -> tuple[tuple[float, float, float], ...]:
     """Samples ``(t, x, y)`` of braking along the line of travel until at rest (at most
-    `steps` periods; a neighbour is assumed to brake as hard as this robot can)."""
+    `steps` periods; a neighbour is assumed to brake as hard as this robot can); with
+    `rates`, each axis brakes on its own at that fraction of `a_max`."""
     robot = DoubleIntegrator(dt, a_max)
     out = [(t, x, y)]
     for k in range(1, steps + 1):
-        ax, ay = brake_input(vx, vy, dt, a_max)
+        if rates is None:
+            ax, ay = brake_input(vx, vy, dt, a_max)
+        else:
+            ax, ay = _axis_brake(vx, vy, dt, a_max, rates)
         x, y, vx, vy = robot.step(x, y, vx, vy, ax, ay)
         out.append((t + k * dt, x, y))
         if abs(vx) <= REST_SPEED and abs(vy) <= REST_SPEED:
             break
     return tuple(out)
+
+
+def _axis_brake(
+    vx: float, vy: float, dt: float, a_max: float, rates: tuple[float, float]
+) -> tuple[float, float]:
+    """Each axis braked on its own at its fraction of `a_max`, to rest and not past it."""
+    bx, by = rates[0] * a_max, rates[1] * a_max
+    return math.copysign(min(abs(vx) / dt, bx), -vx), math.copysign(min(abs(vy) / dt, by), -vy)
+
+
+def _stays_free(floor: Floor, path: tuple[tuple[float, float, float], ...]) -> bool:
+    """Whether the robot's centre stays in the floor's free space along `path`, within the
+    band the safety checker allows (a robot skimming a wall stands on its edge)."""
+    xy = [(x, y) for _, x, y in path]
+    shape = Point(xy[0]) if len(xy) == 1 else LineString(xy)
+    return bool(shapely.covers(_free_within_band(floor), shape))
+
+
+@functools.lru_cache(maxsize=8)
+def _free_within_band(floor: Floor) -> BaseGeometry:
+    """The floor's free space grown by `BOUNDARY_BAND` (made once per floor)."""
+    free = floor.free_space.buffer(BOUNDARY_BAND, join_style="mitre")
+    shapely.prepare(free)
+    return free
