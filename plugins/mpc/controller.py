@@ -50,6 +50,7 @@ from fleet_plugins.mpc.options import DEFAULT_MAX_NODES, check_horizon, check_op
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
+from fleet_plugins.mpc.start import StartGate
 from fleet_plugins.mpc.trip import Trip
 
 __all__ = ["MPCController"]
@@ -83,36 +84,36 @@ class MPCController(Controller):
     ``cost = "quadratic"`` then solves the paper's quadratic cost exactly for the regions that
     MILP chose (a convex QP, `refine.refine_quadratic`) and applies its input when it is optimal.
 
-    The reference is the path layer's time-parameterised trajectory to the goal (tracking only
-    the goal stalls in front of obstacles). While the robot keeps pace, step k tracks reference
-    sample ``index(t) + k``; when it falls behind (print caps slow it down) the window follows
-    its progress along the path instead, one sample ahead, so the reference never runs away.
+    The reference is the path layer's time-parameterised trajectory to the goal (tracking only the
+    goal stalls in front of obstacles). While the robot keeps pace, step k tracks reference sample
+    ``index(t) + k``; when it falls behind (print caps slow it down) the window follows its
+    progress along the path instead, one sample ahead, so the reference never runs away.
 
     Each step k = 1..N-1 may only use the regions of the reference chords around its expected
     progress (±`corridor` chords) plus the region the previous plan used there, and only those
     whose bounding box meets the reachable box of the step: a handful of binaries per solve.
 
-    Other robots (`Observation.neighbours`, with ``avoid_robots``): each one whose predicted
-    square can come within reach of the plan adds binaries for the four sides of the square of
-    half-width ``r_i + r_j + separation_margin_m`` round its predicted centre (its plan
-    interpolated at each step's time), one of which must hold over each group of steps
-    (`separation`). The margin is soft (a heavy cost), contact is not. With
-    ``respect_priority``, a robot keeps clear of the robots that outrank it (higher priority;
-    on a tie, the smaller robot id), and of the robots it outranks only when they are parked
-    for the whole horizon or close (`neighbours` says why); with a moving lower robot close it
-    does not solve but follows its previous plan while that keeps clear, else brakes (unless
-    braking runs into a robot standing still: then it solves). A moving
-    robot's square covers both its plan and its braking path (it may drop its plan at its next
-    tick). The nearest ``max_neighbours`` robots are constrained, then any other the plan runs
+    Other robots (`Observation.neighbours`, with ``avoid_robots``): each one whose predicted square
+    can come within reach of the plan adds binaries for the four sides of the square of half-width
+    ``r_i + r_j + separation_margin_m`` round its predicted centre (its plan interpolated at each
+    step's time), one of which must hold over each group of steps (`separation`). The margin is
+    soft (a heavy cost), contact is not. With ``respect_priority``, a robot keeps clear of the
+    robots that outrank it (higher priority; on a tie, the smaller robot id), and of the robots it
+    outranks only when they are parked for the whole horizon or close (`neighbours` says why); with
+    a moving lower robot close it does not solve but follows its previous plan while that keeps
+    clear, else brakes (unless braking runs into a robot standing still: then it solves); at rest
+    with a higher robot close, it shows a plan that sets it off a tick before it moves (`start`). A
+    moving robot's square covers both its plan and its braking path (it may drop its plan at its
+    next tick). The nearest ``max_neighbours`` robots are constrained, then any other the plan runs
     into, solving again (`crowd`: in a crowd the plan ran through the fourth or fifth).
 
     When a solve gives no usable solution (node limit without incumbent, the wall-clock guard,
-    infeasible, solver error) the controller falls back: the previous plan shifted by one step
-    if the robot is on it and it keeps clear of every neighbour's predicted position, between
-    the steps too (it ends at rest), else braking (`fallback.brake`: kept in the free space;
-    with neighbours about, its path is the plan). It then plans a new trip, as it does after a
-    plan that keeps it at rest off its goal with nobody about (`fallback.stays_put`). Each
-    solved tick's command carries a `SolveReport`.
+    infeasible, solver error) the controller falls back: the previous plan shifted by one step if
+    the robot is on it and it keeps clear of every neighbour's predicted position, between the
+    steps too (it ends at rest), else braking (`fallback.brake`: kept in the free space; with
+    neighbours about, its path is the plan). It then plans a new trip, as it does after a plan that
+    keeps it at rest off its goal with nobody about (`fallback.stays_put`). Each solved tick's
+    command carries a `SolveReport`.
 
     Parameters
     ----------
@@ -238,6 +239,7 @@ class MPCController(Controller):
         self._progress = 0
         self._failed: tuple[Any, ...] | None = None
         self._reused = 0  # ticks the latest solved plan has been followed without a solve
+        self._go = StartGate(self.respect_priority and self.avoid_robots, self.separation_margin_m)
         #: Ticks that followed the previous plan instead of solving (`reuse_ticks`).
         self.reuses = 0
         #: Trips built so far (a new goal or a fallback starts one).
@@ -294,9 +296,7 @@ class MPCController(Controller):
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
             if stays_put(obs, solution.p, goal, spec.radius):
                 self._model = None  # a trap nothing else ends: a new trip from here
-            plan = plan_points(obs.t, solution.p, spec.period)
-            u = solution.u[0]
-            return Command(float(u[0]), float(u[1]), ControlStatus.OK, plan, report)
+            return self._go.command(obs, spec, solution.p, solution.u[0], report)  # (`start`)
         return self._fallback(obs, report)
 
     def _reusable(self, obs: Observation, hold: bool = False) -> bool:
@@ -330,6 +330,7 @@ class MPCController(Controller):
         self.reuses += 1
         last = self._last
         assert last.p is not None and last.u is not None
+        self._go.shown(obs.t, last.p)
         plan = plan_points(obs.t, last.p, self.context.spec.period)
         return Command(float(last.u[0, 0]), float(last.u[0, 1]), ControlStatus.OK, plan)
 
