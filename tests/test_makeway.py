@@ -114,22 +114,28 @@ def test_the_idle_robot_holds_its_spot_until_the_stuck_robot_moves_on(world: Wor
         stuck.faulted = False
 
 
+def aside_near_home(world: World, make_way: MakeWay):
+    """r02, stuck 1 m from home (nearer than a robot must gain to be "past" the one aside),
+    asks the idle r01, 2.5 m from it, to step aside: (r01, r02, r01's spot)."""
+    idle, stuck = world.robots["r01"], world.robots["r02"]
+    hx, hy = stuck.home
+    idle.x, idle.y, stuck.x, stuck.y = hx + 2.5, hy, hx + 1.0, hy
+    idle.aside, idle.job, stuck.job = None, None, None
+    stuck.return_home = True
+    stuck.watched_goal = stuck.home
+    make_way.ask(stuck, stuck.home, [idle], t=0.0)
+    return idle, stuck, idle.aside.spot
+
+
 def test_the_wait_aside_ends_once_the_other_is_at_rest_on_its_goal_not_driving_through(
     world: World,
 ) -> None:
     # Fuzz s21-0607: an MPC robot braking into its station ran 0.07 m past it at 0.44 m/s;
     # the robot aside took that for "there", came back into its way, and the other stood
     # 0.37 m short of the station for 15 s.
-    idle, stuck = world.robots["r01"], world.robots["r02"]
-    hx, hy = stuck.home
-    # Stuck 1 m from its goal: nearer than a robot must gain to be "past" the one aside.
-    idle.x, idle.y, stuck.x, stuck.y = hx + 2.5, hy, hx + 1.0, hy
-    idle.aside, idle.job, stuck.job = None, None, None
-    stuck.return_home = True
-    stuck.watched_goal = stuck.home
     make_way = fresh(world)
-    make_way.ask(stuck, stuck.home, [idle], t=0.0)
-    spot = idle.aside.spot
+    idle, stuck, spot = aside_near_home(world, make_way)
+    hx, _ = stuck.home
     stuck.x, stuck.vx = hx - 0.07, -0.44  # through its goal, at speed
     try:
         assert make_way.goal_of(idle, 1.0) == spot
@@ -145,17 +151,11 @@ def test_the_wait_aside_lasts_until_the_other_has_arrived_as_the_run_counts_arri
     # Fuzz s61-0236: an MPC robot stopped 0.057 m from its station, inside `ARRIVED_M` but
     # outside the run's 0.05 m tolerance; the robot it had sent aside came straight back and
     # kept it out of the last 7 mm for 90 s.
-    idle, stuck = world.robots["r01"], world.robots["r02"]
-    hx, hy = stuck.home
-    idle.x, idle.y, stuck.x, stuck.y = hx + 2.5, hy, hx + 1.0, hy
-    idle.aside, idle.job, stuck.job = None, None, None
-    stuck.return_home = True
-    stuck.watched_goal = stuck.home
     w = world
     make_way = MakeWay(w.floor, w.robots, w.recorder, w.planner_for, 10.0, arrival_m=0.05)
     assert make_way.arrival_m == 0.05
-    make_way.ask(stuck, stuck.home, [idle], t=0.0)
-    spot = idle.aside.spot
+    idle, stuck, spot = aside_near_home(world, make_way)
+    hx, _ = stuck.home
     try:
         stuck.x, stuck.vx = hx + 0.057, 0.0  # at rest, not yet arrived
         assert make_way.goal_of(idle, 1.0) == spot
