@@ -6,6 +6,8 @@ line of travel (`brake`); with other robots about, the braking path is its plan
 (`braking_path`), so that they avoid where it stops rather than where it was heading. Given
 the floor, a braking path that would leave the free space (a robot skimming a wall at an angle)
 is replaced by one that brakes the axes at other rates and stays in it (`BRAKE_RATES`).
+A usable plan that keeps the robot where it is, off its goal with nobody about, is a trap of
+the same kind: `stays_put` tells the controller to plan a new trip.
 """
 
 from __future__ import annotations

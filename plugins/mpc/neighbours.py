@@ -157,16 +157,7 @@ def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) ->
 
 def must_announce(obs: Observation, spec: RobotSpec, margin: float) -> bool:
     """Whether this robot, at rest, must show a start from rest one tick before it moves: a
-    robot that outranks it is `close`.
-
-    Others see a robot's plan one tick late. Against a lower robot at rest (its plan at rest)
-    a higher robot is not held (`must_hold`): it re-plans, keeping clear of where the lower
-    one stands; the lower one keeps clear of the higher one's last plan. Should both start at
-    the same tick, each plan keeps clear of the other's old one and the two can meet (MPC fuzz
-    case s41-0057: both at rest 1.77 m apart, both set off, 0.58 m apart with radii 0.378).
-    So a lower robot that would set off first publishes its plan one tick late and stays at
-    rest: at the next tick the higher robot sees it moving and is held (it follows its plan or
-    brakes), and the lower one keeps clear of that."""
+    robot that outranks it is `close` (why: `fleet_plugins.mpc.start`)."""
     if max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
         return False
     for n in obs.neighbours:
