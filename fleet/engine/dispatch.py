@@ -83,6 +83,9 @@ class Dispatch:
         #: Robots that handed a job back as blocked: where they were blocked on their way to,
         #: and until when they are not given a job whose first stop is that place.
         self._blocked_to: dict[str, tuple[tuple[float, float], float]] = {}
+        #: Jobs queued behind a busy robot's current one (auctions), to the robots that were
+        #: idle when it was queued: a robot freed since may deliver it sooner (`_reoffer`).
+        self._queued_idle: dict[str, frozenset[str]] = {}
 
     def held_off(self, rec: JobRecord) -> set[str]:
         """The robots not to be given `rec` now: those that handed it back lately, and those
@@ -162,6 +165,7 @@ class Dispatch:
         the ones nobody won."""
         if not self._auction:
             return []
+        self._reoffer(t)
         out = []
         for rec in self.jobs:
             jid = rec.job.id
@@ -178,6 +182,31 @@ class Dispatch:
         self._announce.clear()
         self.recorder.stats["announcements"] += len(out)
         return out
+
+    def _idle(self) -> set[str]:
+        """The robots that may take a job and have none."""
+        return {r.id for r in self.robots.values() if r.job is None and self.available(r)}
+
+    def _reoffer(self, t: float) -> None:
+        """Take back each job queued behind a busy robot's current one while a robot that was
+        not idle when it was queued stands idle now and may take it, and announce it again:
+        the lowest bid wins it anew (its holder bids too). Queued jobs were otherwise never
+        offered again, and waited behind a robot that was blocked or slow while others
+        stood idle (fuzz s21-0854, s21-0998)."""
+        idle = self._idle()
+        if not idle:
+            return
+        for robot in self.robots.values():
+            for rec in list(robot.queue):
+                jid = rec.job.id
+                if not idle - self._queued_idle.get(jid, frozenset()) - self.held_off(rec):
+                    continue
+                robot.queue.remove(rec)
+                rec.robot = rec.assigned_s = None
+                self._queued_idle.pop(jid, None)
+                self._announce.add(jid)
+                self.recorder.stats["jobs_reoffered"] += 1
+                self.recorder.event(t, "reoffered", jid, robot.id, rec.job.station)
 
     def award(self, bids: list[Bid]) -> None:
         """Let the dispatcher award announced jobs from this round's bids."""
@@ -257,6 +286,7 @@ class Dispatch:
                 robot.job = rec
             else:
                 robot.queue.append(rec)
+                self._queued_idle[rec.job.id] = frozenset(self._idle())
             self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
         return declined
 

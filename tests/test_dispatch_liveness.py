@@ -1,0 +1,111 @@
+"""Dispatch-level liveness (issue 16): a job queued behind a busy robot is offered again when
+another robot frees up, and a station is not kept by the robot already standing on it while
+other robots hold jobs waiting for it. Real follower runs on small open floors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fleet.engine import World
+from fleet.scenario import load_scenario
+
+FLOOR = """\
+[floor]
+name = "open hall"
+rect = [0, 0, 32, 12]
+default_v_max = 1.0
+clearance = 0.4
+{stations}
+"""
+
+SCENARIO = """\
+[scenario]
+name = "{name}"
+map = "floor.toml"
+duration_s = {duration}
+seed = 1
+arrival_tolerance_m = 0.05
+sensing_radius_m = 6.0
+deadlock_after_s = 30
+
+[robots]
+count = {count}
+start = {start}
+v_max = 1.0
+a_max = 0.5
+radius = 0.4
+period_s = 0.25
+return_home = true
+
+[controller]
+name = "follower"
+
+[dispatcher]
+name = "{dispatcher}"
+
+[jobs]
+mode = "scripted"
+{jobs}
+"""
+
+
+def stations(**where: tuple[float, float]) -> str:
+    return "\n".join(
+        f'[[stations]]\nname = "{name}"\nat = [{x}, {y}]\n'
+        + ('kind = "depot"\n' if name.startswith("home") else "")
+        for name, (x, y) in where.items()
+    )
+
+
+def run(tmp_path: Path, floor: str, **fields: object) -> World:
+    (tmp_path / "floor.toml").write_text(FLOOR.format(stations=floor), encoding="utf-8")
+    (tmp_path / "scen.toml").write_text(SCENARIO.format(**fields), encoding="utf-8")
+    world = World(load_scenario(tmp_path / "scen.toml"))
+    world.run()
+    return world
+
+
+def events(world: World, kind: str, job: str | None = None) -> list[tuple[float, str, str]]:
+    return [
+        (e.t, e.job, e.robot)
+        for e in world.recorder.events
+        if e.event == kind and (job is None or e.job == job)
+    ]
+
+
+def test_a_job_queued_behind_a_busy_robot_goes_to_a_robot_freed_meanwhile(tmp_path):
+    # r01 heads for x on its way to d; its bid for j00003 (to s3, next to x) counts only the
+    # trip to x, so it wins j00003 behind its own job. r02 delivers j00002 soon after and
+    # stands idle while r01 still drives to d and back: j00003 is offered again, r02 wins it.
+    world = run(
+        tmp_path,
+        stations(homea=(14, 3), homeb=(24, 9), x=(16, 3), d=(3, 3), s3=(17, 6), e=(28, 9)),
+        name="queued behind a busy robot",
+        duration=90,
+        count=2,
+        start='["homea", "homeb"]',
+        dispatcher="auction",
+        jobs="""
+[[jobs.scripted]]
+at_s = 0
+station = "d"
+via = ["x"]
+
+[[jobs.scripted]]
+at_s = 0
+station = "e"
+
+[[jobs.scripted]]
+at_s = 1
+station = "s3"
+""",
+    )
+    jobs = {rec.job.id: rec for rec in world.jobs}
+    assert events(world, "assigned", "j00003")[0][2] == "r01"  # queued behind its job first
+    assert jobs["j00003"].robot == "r02"
+    assert jobs["j00003"].delivered_s is not None
+    # Delivered about when r01 reaches d, some 14 m (over 15 s) from s3: it did not wait
+    # behind r01's job.
+    assert jobs["j00003"].delivered_s < jobs["j00001"].delivered_s + 5.0
+    assert all(rec.delivered_s is not None for rec in world.jobs)
+    assert [robot for _, _, robot in events(world, "reoffered", "j00003")] == ["r01"]
