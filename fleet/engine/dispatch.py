@@ -189,17 +189,21 @@ class Dispatch:
 
     def _reoffer(self, t: float) -> None:
         """Take back each job queued behind a busy robot's current one while a robot that was
-        not idle when it was queued stands idle now and may take it, and announce it again:
-        the lowest bid wins it anew (its holder bids too). Queued jobs were otherwise never
-        offered again, and waited behind a robot that was blocked or slow while others
-        stood idle (fuzz s21-0854, s21-0998)."""
+        not idle when it was queued stands idle now and may take it (or any idle robot, while
+        the holder is stalled), and announce it again: the lowest bid wins it anew, its
+        holder's too unless stalled. Queued jobs were otherwise never offered again, and
+        waited behind a robot that was blocked or slow while others stood idle (fuzz
+        s21-0854, s21-0998)."""
         idle = self._idle()
         if not idle:
             return
         for robot in self.robots.values():
             for rec in list(robot.queue):
                 jid = rec.job.id
-                if not idle - self._queued_idle.get(jid, frozenset()) - self.held_off(rec):
+                # A stalled holder (`RobotState.stalled`: no progress for a deadlock period)
+                # gives its queued jobs up to any idle robot; it wins none while stalled.
+                known = frozenset() if robot.stalled else self._queued_idle.get(jid, frozenset())
+                if not idle - known - self.held_off(rec):
                     continue
                 robot.queue.remove(rec)
                 rec.robot = rec.assigned_s = None
@@ -220,6 +224,8 @@ class Dispatch:
             and b.robot in self.robots
             and self.available(self.robots[b.robot])
             and not self.robots[b.robot].queue
+            # A robot stalled on its way to its job takes on no more (`_reoffer`).
+            and not (self.robots[b.robot].job is not None and self.robots[b.robot].stalled)
         ]
         self.recorder.stats["bids"] += len(bids)
         if not valid:
