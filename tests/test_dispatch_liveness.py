@@ -162,7 +162,7 @@ station = "h"
     strict=True,
     reason="station starvation (fuzz s21-0366): the robot on a station takes the next job "
     "there and prints standing on it while a robot ready to deliver waits beside it; "
-    "dispatch-level turn rules measured worse on the fuzz (see the dispatch branch's report)",
+    "dispatch-level turn rules measured worse on the fuzz (docs/fleet.md, known limit)",
 )
 def test_the_robot_served_at_a_station_does_not_take_its_next_job_ahead_of_one_waiting(tmp_path):
     # r01 reaches g first and prints there; r02, holding an older job to g, waits beside it
