@@ -785,7 +785,7 @@ class Oracle:
                     waiting.append((job, open_since.pop(job), t))
                 holder[job] = robot
                 held_from[(job, robot)] = t
-            elif ev in ("delivered", "handed_back", "failed"):
+            elif ev in ("delivered", "handed_back", "reoffered", "failed"):
                 who = holder.get(job)
                 if who is not None and (job, who) in held_from:
                     busy[who].append((held_from.pop((job, who)), t))

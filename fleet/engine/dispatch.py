@@ -83,6 +83,9 @@ class Dispatch:
         #: Robots that handed a job back as blocked: where they were blocked on their way to,
         #: and until when they are not given a job whose first stop is that place.
         self._blocked_to: dict[str, tuple[tuple[float, float], float]] = {}
+        #: Jobs queued behind a busy robot's current one (auctions), to the robots that were
+        #: idle when it was queued: a robot freed since may deliver it sooner (`_reoffer`).
+        self._queued_idle: dict[str, frozenset[str]] = {}
 
     def held_off(self, rec: JobRecord) -> set[str]:
         """The robots not to be given `rec` now: those that handed it back lately, and those
@@ -162,6 +165,7 @@ class Dispatch:
         the ones nobody won."""
         if not self._auction:
             return []
+        self._reoffer(t)
         out = []
         for rec in self.jobs:
             jid = rec.job.id
@@ -179,6 +183,35 @@ class Dispatch:
         self.recorder.stats["announcements"] += len(out)
         return out
 
+    def _idle(self) -> set[str]:
+        """The robots that may take a job and have none."""
+        return {r.id for r in self.robots.values() if r.job is None and self.available(r)}
+
+    def _reoffer(self, t: float) -> None:
+        """Take back each job queued behind a busy robot's current one while a robot that was
+        not idle when it was queued stands idle now and may take it (or any idle robot, while
+        the holder is stalled), and announce it again: the lowest bid wins it anew, its
+        holder's too unless stalled. Queued jobs were otherwise never offered again, and
+        waited behind a robot that was blocked or slow while others stood idle (fuzz
+        s21-0854, s21-0998)."""
+        idle = self._idle()
+        if not idle:
+            return
+        for robot in self.robots.values():
+            for rec in list(robot.queue):
+                jid = rec.job.id
+                # A stalled holder (`RobotState.stalled`: no progress for a deadlock period)
+                # gives its queued jobs up to any idle robot; it wins none while stalled.
+                known = frozenset() if robot.stalled else self._queued_idle.get(jid, frozenset())
+                if not idle - known - self.held_off(rec):
+                    continue
+                robot.queue.remove(rec)
+                rec.robot = rec.assigned_s = None
+                self._queued_idle.pop(jid, None)
+                self._announce.add(jid)
+                self.recorder.stats["jobs_reoffered"] += 1
+                self.recorder.event(t, "reoffered", jid, robot.id, rec.job.station)
+
     def award(self, bids: list[Bid]) -> None:
         """Let the dispatcher award announced jobs from this round's bids."""
         open_jobs = {rec.job.id: rec for rec in self.jobs if rec.open}
@@ -191,6 +224,8 @@ class Dispatch:
             and b.robot in self.robots
             and self.available(self.robots[b.robot])
             and not self.robots[b.robot].queue
+            # A robot stalled on its way to its job takes on no more (`_reoffer`).
+            and not (self.robots[b.robot].job is not None and self.robots[b.robot].stalled)
         ]
         self.recorder.stats["bids"] += len(bids)
         if not valid:
@@ -257,6 +292,7 @@ class Dispatch:
                 robot.job = rec
             else:
                 robot.queue.append(rec)
+                self._queued_idle[rec.job.id] = frozenset(self._idle())
             self.recorder.event(self.env.now, "assigned", rec.job.id, robot.id, rec.job.station)
         return declined
 

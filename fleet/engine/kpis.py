@@ -37,6 +37,7 @@ _STEPS = {
     "released": (1, 1),
     "assigned": (-1, 0),
     "handed_back": (1, 0),  # open again ...
+    "reoffered": (1, 0),  # taken back from a busy robot's queue, open again
     "failed": (-1, -1),  # ... unless it was given up (its hand-back came first)
     "delivered": (0, -1),
 }

@@ -39,9 +39,9 @@ Output contract (extend it, never break it):
   warm-up).
 - ``trajectories.csv``: t, robot, x, y, vx, vy, region, v_zone (one row per robot per tick).
 - ``events.csv``: t, event, job, robot, station (released, assigned, started, turn, passed,
-  arrived, delivered, and deadlock, make_way, handed_back, failed, fault, rejoined, breakdown,
-  repaired; with ``[battery]`` also charge_go, charge_start, charge_end, stranded, with the
-  charger as the station).
+  arrived, delivered, and deadlock, make_way, handed_back, reoffered, failed, fault, rejoined,
+  breakdown, repaired; with ``[battery]`` also charge_go, charge_start, charge_end, stranded,
+  with the charger as the station).
 - ``jobs.csv``: id, part, robot, released_s, started_s, finished_s, delivered_s,
   predicted_error_mm, passed, due_s, outcome: one row per job (empty: not happened, or nothing
   printed); started/finished are the print's start and end (for a job with nothing to print,
