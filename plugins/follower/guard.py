@@ -25,6 +25,7 @@ from fleet_plugins.follower.yielding import (
     braking_path,
     must_yield,
     stops_clear,
+    unseen_step,
 )
 
 if TYPE_CHECKING:
@@ -84,7 +85,7 @@ class Guard:
         `PathFollower`); if not, it must hold."""
         spec = self.spec
         dt, a_max = spec.period, spec.a_max
-        forecasts = [Forecast.of(n, obs.t, dt, a_max) for n in obs.neighbours]
+        forecasts = [Forecast.of(n, obs.t, dt, a_max, spec.v_max) for n in obs.neighbours]
         # Where it would stop must stay clear a while too: stopping right in the way of a
         # robot about to pass is no stop in time.
         t_stop, x_stop, y_stop = stop[-1]
@@ -218,7 +219,7 @@ class Guard:
         spec = self.spec
         # Past the gap by the drift a parked robot is granted (`Forecast`), so that the
         # stopping check lets the robot drive the detour past a blocker that sends no plan.
-        drift = math.sqrt(2.0) * spec.a_max * spec.period**2
+        drift = unseen_step(spec.period, spec.a_max, spec.v_max)
         return Detour.build(
             self.floor,
             self._blockers,
