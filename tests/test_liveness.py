@@ -95,6 +95,14 @@ def judged(case: str, tmp_path: Path) -> list:
         # (now 0.88 m) held three robots apart round two stations; two jobs were handed back
         # and taken again, and never delivered in 400 s.
         "held_apart_at_coarse_period",
+        # Fuzz seed 21 (s21-0312): r01, given a job at its depot in a ring of seven parked
+        # robots, had them all sent aside at its first deadlock; it drove its detour round one
+        # still in its way, but the watch stops naming blockers once the robot is 0.25 m
+        # nearer its goal, and the follower dropped the detour, braked and went back to the
+        # normal route past the same robot: 0.2 to 0.3 m per deadlock period (30 s), the job
+        # undone at the end. The follower now keeps a detour it drives while its blockers
+        # stand where they stood.
+        "let_out_of_a_ring",
     ],
 )
 def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
@@ -144,3 +152,20 @@ def test_a_robot_printing_on_a_via_station_lets_a_robot_pass_it() -> None:
     assert s["violations"]["collision"] == 0
     passed = [e.t for e in world.recorder.events if e.event == "passed" and e.robot == "r02"]
     assert len(passed) == 1 and passed[0] < 60.0
+
+
+def test_a_robot_driving_its_route_round_a_wall_is_not_taken_for_a_stuck_one() -> None:
+    # r01's route to "far" runs 23 m east to the end of a wall and back west: for more than a
+    # deadlock period (10 s) it gets no closer to its goal as the crow flies. The watch took
+    # it for a stuck robot and the idle r02, parked 1.4 m beside the route, for its blocker
+    # (a deadlock at 17.75 s, r02 sent aside, and again on the way home); in a door the robot
+    # met there would be a blocker it cannot route round, and it handed its job back (fuzz
+    # s21-0204, s21-0677). Progress along the route counts now.
+    world = World(load_scenario(CASES / "round_a_wall" / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 1
+    events = [e.event for e in world.recorder.events]
+    assert "deadlock" not in events and "make_way" not in events
+    assert s["deadlocks"] == 0
+    r02 = world.robots["r02"]
+    assert math.dist((r02.x, r02.y), r02.home) < 1e-9

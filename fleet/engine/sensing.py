@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning
 from fleet.engine.recorder import Recorder
+from fleet.errors import NoPathError
 from fleet.plugins import CAP_LOOKAHEAD_S, Neighbour, Observation
 from fleet.scenario import Scenario
 
@@ -153,9 +154,15 @@ class Sensing:
             r.watched_goal, r.blockers, r.stalled = None, (), False
             return
         gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
-        if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M:
+        if (
+            goal != r.watched_goal
+            or gap <= tol
+            or gap < r.best_gap - PROGRESS_M
+            or (t - r.progress_s >= after - 1e-9 and self._gained_on_route(r, goal))
+        ):
             r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, t, ()
             r.stalled = False
+            r.progress_at, r.route_then, r.route_seen = (r.x, r.y), None, None
             return
         if t - r.progress_s < after - 1e-9:
             return
@@ -236,6 +243,34 @@ class Sensing:
         # began again elsewhere, often to be handed back again.
         r.blockers = tuple(b for b in blockers if not self.make_way.steps_aside_for(b, r.id, t))
         r.stalled = stalled
+
+    def _gained_on_route(self, r: RobotState, goal: tuple[float, float]) -> bool:
+        """Whether `r` is now `PROGRESS_M` nearer `goal` along its route (the path layer's,
+        robots ignored) than where it last made progress. A route round a wall leads away
+        from the goal as the crow flies: a robot driving it for a deadlock period was taken
+        for a stuck one, and the first robot it met in a door became a blocker it could not
+        route round, so it handed its job back at once (fuzz s21-0204, s21-0677). Measured
+        only once the robot has moved `PROGRESS_M` since the last time (a stuck robot costs
+        nothing)."""
+        here = (r.x, r.y)
+        if r.progress_at is None or (
+            r.route_seen is not None and math.dist(here, r.route_seen) <= PROGRESS_M
+        ):
+            return False
+        r.route_seen = here
+        if r.route_then is None:
+            r.route_then = self._route_length(r, r.progress_at, goal)
+        return self._route_length(r, here, goal) < r.route_then - PROGRESS_M
+
+    def _route_length(
+        self, r: RobotState, start: tuple[float, float], goal: tuple[float, float]
+    ) -> float:
+        """The length (m) of the path layer's route from `start` to `goal` for `r` (as the crow
+        flies where there is none)."""
+        try:
+            return self.make_way.planner_for(r.spec).path(start, goal).length
+        except NoPathError:
+            return math.dist(start, goal)
 
     def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
         """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;
