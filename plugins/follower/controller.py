@@ -114,7 +114,9 @@ class PathFollower(Controller):
       a temporary obstacle of radius R (`Detour`, built once per set of blockers; less where
       the robot stands closer), and does not yield to them. With no such route it brakes and
       answers `ControlStatus.BLOCKED` (its agent hands the job back). When the blockers are
-      cleared it brakes to rest and plans the normal route again.
+      cleared it keeps the detour it drives while each of them stands where it stood
+      (`Guard.route`); once one moves or is out of sight it brakes to rest and plans the
+      normal route again.
 
     Braking and waiting send their plans at once (the stop, or the spot held for
     `PLAN_HORIZON` seconds), so neighbours never see a stale "moving on".
@@ -262,7 +264,9 @@ class PathFollower(Controller):
             self._track = None
             return self._brake(obs, ControlStatus.OK)
 
-        route = self._guard.route(obs)
+        # A detour it drives is kept after the watch stops naming its blockers (`Guard.route`).
+        keep = goal == self._goal and self._route_key is not None and self._failed is None
+        route = self._guard.route(obs, keep)
         key = None if route is None else route.key
         stale = goal != self._goal or cap != self._cap or key != self._route_key
         if self._track is not None and (stale or self._track.off_track(obs)):
@@ -276,7 +280,10 @@ class PathFollower(Controller):
             if obs.x == goal[0] and obs.y == goal[1]:
                 return Command(0.0, 0.0, ControlStatus.OK)  # already there: nothing to plan
             # Without a route round its blockers the robot cannot do its job: hand it back.
+            # A detour kept with no blockers named holds (OK) and is dropped by the attempt.
             failure = ControlStatus.FALLBACK if route is None else ControlStatus.BLOCKED
+            if route is not None and not obs.blockers:
+                failure = ControlStatus.OK
             attempt = (goal, obs.x, obs.y, cap, key)
             if self._failed == attempt:
                 if route is None or not self._guard.blockers_moved(obs):

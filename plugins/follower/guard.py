@@ -68,6 +68,8 @@ class Guard:
         self.hold_steps = hold_steps
         self.detour: Detour | None = None
         self._blockers: list[tuple[str, float, float, float]] = []
+        #: Whether the detour is one kept with no blockers named (`route`).
+        self._kept = False
 
     # -- rules 1 and 2 ----------------------------------------------------------------------------
     def braking_after(self, obs: Observation, cmd: Command) -> list[tuple[float, float, float]]:
@@ -90,7 +92,8 @@ class Guard:
         # robot about to pass is no stop in time.
         t_stop, x_stop, y_stop = stop[-1]
         held = [(t_stop + i * dt, x_stop, y_stop) for i in range(1, self.hold_steps + 1)]
-        blockers = set(obs.blockers)  # routed round: waiting for them would undo the detour
+        # Routed round: waiting for them would undo the detour.
+        blockers = set(obs.blockers) if self.detour is None else set(self.detour.key)
         higher = [
             f
             for f in forecasts
@@ -112,7 +115,7 @@ class Guard:
         # they were stuck close): hold it to that. Higher ones go first (they route round this
         # one): the robot only moves away from them while that close.
         gaps = None
-        if self.detour is not None and obs.blockers:
+        if self.detour is not None:
             gaps = {
                 f.robot: min(
                     spec.radius + f.radius + self.margin_m, self.detour.clearance[f.robot] - 1e-3
@@ -165,11 +168,24 @@ class Guard:
         return bool(self.floor.free_space_tolerant.covers(LineString(points)))
 
     # -- rule 3 -----------------------------------------------------------------------------------
-    def route(self, obs: Observation) -> Detour | None:
-        """The detour round this observation's blockers (those in sight), None without any."""
+    def route(self, obs: Observation, keep: bool = False) -> Detour | None:
+        """The detour round this observation's blockers (those in sight), None without any.
+
+        With `keep` (the robot drives a reference planned on the current detour) and no
+        blockers named any more, the detour is kept while each of its blockers is in sight
+        within `MOVED_M` of where it stood: the deadlock watch stops naming them once the
+        robot has gained a little on its goal, long before it is past them, and dropping the
+        detour then braked it and sent it back onto the normal route, against the same
+        blocker, to wait a whole deadlock period again (fuzz s21-0312: a robot let out of a
+        ring of seven parked robots gained 0.2 to 0.3 m per deadlock period, for 100 s)."""
         if not obs.blockers:
-            self.detour = None
-            return None
+            if not (keep and self.detour is not None and self._in_place(obs)):
+                self.detour = None
+            self._kept = self.detour is not None
+            return self.detour
+        if self._kept:
+            # Named again after it was kept: built anew round them where they stand now.
+            self.detour, self._kept = None, False
         seen = {n.robot: n for n in obs.neighbours}
         blockers = [
             (n.robot, n.x, n.y, n.radius)
@@ -186,6 +202,16 @@ class Guard:
             self._blockers = blockers
             self.detour = self._build_detour(obs)
         return self.detour
+
+    def _in_place(self, obs: Observation) -> bool:
+        """Whether every blocker of the current detour is in sight within `MOVED_M` of where
+        it stood when the detour was built."""
+        seen = {n.robot: n for n in obs.neighbours}
+        for name, x, y, _ in self._blockers:
+            n = seen.get(name)
+            if n is None or math.hypot(n.x - x, n.y - y) > MOVED_M:
+                return False
+        return True
 
     def blockers_moved(self, obs: Observation) -> bool:
         """Whether a blocker of the current detour now stands more than `MOVED_M` from where
