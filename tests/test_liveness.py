@@ -169,3 +169,17 @@ def test_a_robot_driving_its_route_round_a_wall_is_not_taken_for_a_stuck_one() -
     assert s["deadlocks"] == 0
     r02 = world.robots["r02"]
     assert math.dist((r02.x, r02.y), r02.home) < 1e-9
+
+
+def test_robots_face_to_face_in_a_corridor_pass_without_a_hand_back() -> None:
+    # r01 and r02 meet head-on in a one-lane corridor. r02 (lower priority) was reported
+    # stuck first; it may not ask r01 (which goes first) to step aside, found no way round it
+    # in the corridor and handed its job back (fuzz s21-0677: both jobs handed back). It now
+    # steps aside for r01 itself: no hand-back, and both jobs are done sooner (83 s, was 93 s).
+    world = World(load_scenario(CASES / "corridor_head_on" / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 2
+    assert s["jobs"]["handed_back"] == 0
+    assert s["violations"]["collision"] == 0
+    asides = [(e.robot, e.station) for e in world.recorder.events if e.event == "make_way"]
+    assert asides == [("r02", "r01")]
