@@ -168,7 +168,9 @@ class Guard:
         return bool(self.floor.free_space_tolerant.covers(LineString(points)))
 
     # -- rule 3 -----------------------------------------------------------------------------------
-    def route(self, obs: Observation, keep: bool = False) -> Detour | None:
+    def route(
+        self, obs: Observation, keep: bool = False, face_off: tuple[str, ...] = ()
+    ) -> Detour | None:
         """The detour round this observation's blockers (those in sight), None without any.
 
         With `keep` (the robot drives a reference planned on the current detour) and no
@@ -177,8 +179,12 @@ class Guard:
         robot has gained a little on its goal, long before it is past them, and dropping the
         detour then braked it and sent it back onto the normal route, against the same
         blocker, to wait a whole deadlock period again (fuzz s21-0312: a robot let out of a
-        ring of seven parked robots gained 0.2 to 0.3 m per deadlock period, for 100 s)."""
-        if not obs.blockers:
+        ring of seven parked robots gained 0.2 to 0.3 m per deadlock period, for 100 s).
+
+        Without blockers named, `face_off` (robots at rest in its way, `in_the_way`) are
+        routed round as blockers are."""
+        named = obs.blockers or face_off
+        if not named:
             if not (keep and self.detour is not None and self._in_place(obs)):
                 self.detour = None
             self._kept = self.detour is not None
@@ -189,7 +195,7 @@ class Guard:
         seen = {n.robot: n for n in obs.neighbours}
         blockers = [
             (n.robot, n.x, n.y, n.radius)
-            for name in sorted(set(obs.blockers))
+            for name in sorted(set(named))
             if (n := seen.get(name)) is not None
         ]
         if not blockers:
@@ -202,6 +208,49 @@ class Guard:
             self._blockers = blockers
             self.detour = self._build_detour(obs)
         return self.detour
+
+    def in_the_way(
+        self, obs: Observation, track: Track, cap: float, goal: tuple[float, float]
+    ) -> tuple[str, ...]:
+        """The lower-priority neighbours at rest, with no plan to move, within the gap
+        (both radii, the margin and `unseen_step`) of the robot's way over the window it
+        yields over (`may_go`), but not of its goal (there it waits its turn)."""
+        spec = self.spec
+        dt, a_max = spec.period, spec.a_max
+        own = track.ahead(obs, dt, 2.0 * min(cap, spec.v_max) / a_max + self.yield_s)
+        found = []
+        for n in obs.neighbours:
+            if n.priority >= obs.priority or max(abs(n.vx), abs(n.vy)) > 1e-9:
+                continue
+            if any(math.hypot(x - n.x, y - n.y) > MOVED_M for _, x, y in n.plan):
+                continue  # about to leave
+            gap = spec.radius + n.radius + self.margin_m + unseen_step(dt, a_max, spec.v_max)
+            if math.hypot(goal[0] - n.x, goal[1] - n.y) <= gap:
+                continue
+            if any(math.hypot(x - n.x, y - n.y) <= gap for _, x, y in own):
+                found.append(n.robot)
+        return tuple(sorted(found))
+
+    def where(self, obs: Observation, names: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+        """Where each of the neighbours `names` in sight stands."""
+        return {n.robot: (n.x, n.y) for n in obs.neighbours if n.robot in names}
+
+    def same_places(
+        self, obs: Observation, names: tuple[str, ...], places: dict[str, tuple[float, float]]
+    ) -> bool:
+        """Whether each of `names` stands within `MOVED_M` of its place in `places`."""
+        now = self.where(obs, names)
+        return all(
+            name in places and name in now and math.dist(now[name], places[name]) <= MOVED_M
+            for name in names
+        )
+
+    def in_place(self, obs: Observation, names: tuple[str, ...]) -> bool:
+        """Whether each of `names` (robots routed round) is in sight within `MOVED_M` of where
+        it stood when the current detour was built (no detour round them: True)."""
+        if self.detour is None or self.detour.key != names:
+            return True
+        return self._in_place(obs)
 
     def _in_place(self, obs: Observation) -> bool:
         """Whether every blocker of the current detour is in sight within `MOVED_M` of where
