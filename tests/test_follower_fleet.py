@@ -36,6 +36,7 @@ from fleet.plugins import (
 )
 from fleet.scenario import REPO_ROOT, Scenario, load_scenario
 from fleet_plugins.follower import PathFollower
+from fleet_plugins.follower.controller import FACE_OFF_S
 from fleet_plugins.follower.yielding import (
     Detour,
     Forecast,
@@ -431,6 +432,55 @@ def test_when_the_blockers_clear_it_goes_back_to_the_normal_route() -> None:
     assert bot.arrived()
     assert len(bot.xy) - resumed == ref.steps
     np.testing.assert_allclose(bot.xy[resumed:], ref.positions[:-1], atol=1e-9)
+
+
+def test_blockers_no_longer_named_but_standing_where_they_stood_keep_the_detour() -> None:
+    # The deadlock watch stops naming blockers once the robot is a little nearer its goal;
+    # dropping the detour then braked it and sent it back against the same parked robot
+    # (fuzz s21-0312). It keeps the detour, and arrives without stopping.
+    start, goal = (3.0, 6.0), (12.0, 6.0)
+    bot = Bot("r1", start, goal=goal)
+    parked = Scripted("r2", (7.5, 6.0), (0.0, 0.0), send_plan=False)
+    simulate([bot], 30, (parked,), blockers=lambda b, k: ("r2",))
+    assert moving(bot.v) and bot.p[1] != 6.0  # on the detour
+    first = len(bot.xy)
+    simulate([bot], 400, (parked,), until=bot.arrived)
+    assert bot.arrived()
+    assert all(moving(v) for v in bot.vel[first:-1])  # never stopped on the way
+    assert all(math.dist(p, (7.5, 6.0)) > 2 * RADIUS for p in bot.xy)
+    # It moves: the detour is dropped, the normal route again (braking first).
+    bot2 = Bot("r1", start, goal=goal)
+    simulate([bot2], 30, (parked,), blockers=lambda b, k: ("r2",))
+    moved = Scripted("r2", (7.5, 7.0), (0.0, 0.0), send_plan=False)
+    simulate([bot2], 1, (moved,))
+    assert bot2.commands[-1].ax * bot2.v[0] + bot2.commands[-1].ay * bot2.v[1] < 0
+
+
+def test_held_face_to_face_by_a_lower_robot_at_rest_it_plans_round_it() -> None:
+    # A lower-priority robot stands still on the way, no blockers named: after FACE_OFF_S at
+    # rest the robot routes round it (rule 3 without the watch) and arrives, never closer
+    # than the two radii.
+    bot = Bot("r1", (3.0, 6.0), goal=(12.0, 6.0), priority=2)
+    parked = Scripted("r2", (7.5, 6.0), (0.0, 0.0), priority=1)
+    simulate([bot], 2000, (parked,), until=bot.arrived)
+    assert bot.arrived()
+    assert all(math.dist(p, (7.5, 6.0)) > 2 * RADIUS for p in bot.xy)
+    # A higher one is waited for (it routes round this one), as before.
+    bot = Bot("r1", (3.0, 6.0), goal=(12.0, 6.0), priority=1)
+    higher = Scripted("r2", (7.5, 6.0), (0.0, 0.0), priority=2)
+    simulate([bot], int(4 * FACE_OFF_S / DT), (higher,))
+    assert not bot.arrived() and bot.p[1] == 6.0
+
+
+def test_no_way_round_a_robot_at_rest_in_a_door_holds_without_a_hand_back() -> None:
+    bot = Bot("r1", (10.0, 6.0), goal=(25.0, 6.0), priority=2)
+    door = Scripted("r2", (15.0, 6.0), (0.0, 0.0), priority=1)
+    simulate([bot], int(4 * FACE_OFF_S / DT), (door,))
+    assert all(c.status is ControlStatus.OK for c in bot.commands)
+    assert math.dist(bot.p, (15.0, 6.0)) > 2 * RADIUS
+    # It went back to its own route: it sets off once the door is free.
+    simulate([bot], 2000, until=bot.arrived)
+    assert bot.arrived()
 
 
 def test_no_route_round_the_blockers_is_blocked_and_holds_until_they_clear() -> None:

@@ -83,9 +83,12 @@ class Aside:
 
 def kept_gap(robot: RobotState) -> float:
     """The gap (m) `robot` keeps from a neighbour on top of the two radii: the follower's
-    margin and the step a neighbour may take unseen in one period (``sqrt(2) a_max dt**2``)."""
+    margin and the step a neighbour may take unseen in one period
+    (``sqrt(2) min(a_max dt, v_max) dt``, the follower's `unseen_step`)."""
     spec = robot.spec
-    return FOLLOWER_MARGIN_M + math.sqrt(2.0) * spec.a_max * spec.period**2
+    return FOLLOWER_MARGIN_M + math.sqrt(2.0) * min(spec.a_max * spec.period, spec.v_max) * (
+        spec.period
+    )
 
 
 class MakeWay:

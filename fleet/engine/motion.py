@@ -92,6 +92,15 @@ class RobotState:
     best_gap: float = math.inf
     progress_s: float = 0.0
     watched_goal: tuple[float, float] | None = None
+    #: Where it stood when it last made progress, the length of its route to the goal from
+    #: there (worked out when first needed) and where it stood when the watch last measured
+    #: its route (`fleet.engine.sensing`: progress along the route counts too).
+    progress_at: tuple[float, float] | None = None
+    route_then: float | None = None
+    route_seen: tuple[float, float] | None = None
+    #: Where it stands, and since when it has stood there (the watch's last sight of it moving).
+    still_at: tuple[float, float] | None = None
+    still_since: float = 0.0
     #: Commands it was sent while it had somewhere to go, and how many were errors (its
     #: controller failed, or no command came): all of them means it could never move.
     goal_commands: int = 0

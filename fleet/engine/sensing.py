@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning
 from fleet.engine.recorder import Recorder
+from fleet.errors import NoPathError
 from fleet.plugins import CAP_LOOKAHEAD_S, Neighbour, Observation
 from fleet.scenario import Scenario
 
@@ -152,10 +153,16 @@ class Sensing:
         if goal is None or after is None or not r.in_service:
             r.watched_goal, r.blockers, r.stalled = None, (), False
             return
+        if (r.x, r.y) != r.still_at:
+            r.still_at, r.still_since = (r.x, r.y), t
         gap = math.hypot(goal[0] - r.x, goal[1] - r.y)
-        if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M:
-            r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, t, ()
+        on_route = t - r.progress_s >= after / 2 - 1e-9 and self._gained_on_route(r, goal)
+        if goal != r.watched_goal or gap <= tol or gap < r.best_gap - PROGRESS_M or on_route:
+            # Progress along the route was made by the time the robot came to stand here.
+            now = r.still_since if on_route else t
+            r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, now, ()
             r.stalled = False
+            r.progress_at, r.route_then, r.route_seen = (r.x, r.y), None, (r.x, r.y)
             return
         if t - r.progress_s < after - 1e-9:
             return
@@ -210,7 +217,7 @@ class Sensing:
             and (
                 o.job is None
                 or (
-                    _no_progress(o, t, after)
+                    _no_progress(o, t, after / 2)
                     and priority[o.id] < priority[r.id]
                     and o.goal is not None
                     and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
@@ -229,13 +236,77 @@ class Sensing:
             log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, named)
         if movable:
             self.make_way.ask(r, goal, movable, t)
+        elif r.job is not None and r.aside is None and gap > tol:
+            self._give_way(r, [o for o in near if o.id in blockers], t, after, priority)
         # Robots sent aside for this one leave its route: for a deadlock period it waits for
         # them on its own route rather than routing round them. Named as blockers, a follower
         # found no way round one in a door or beside a station and handed its job back in the
         # very tick it was asked to step aside (fuzz seed 21: 44 of 61 hand-backs), and the job
         # began again elsewhere, often to be handed back again.
-        r.blockers = tuple(b for b in blockers if not self.make_way.steps_aside_for(b, r.id, t))
+        r.blockers = tuple(
+            b
+            for b in blockers
+            if not self.make_way.steps_aside_for(b, r.id, t)
+            and not (r.aside is not None and r.aside.made_way_for == b)
+        )
         r.stalled = stalled
+
+    def _give_way(
+        self,
+        r: RobotState,
+        blockers: Sequence[RobotState],
+        t: float,
+        after: float,
+        priority: Mapping[str, int],
+    ) -> None:
+        """`r`, stuck with a job, steps aside for the first of its `blockers` that is stuck
+        too with a job and goes first (higher priority): that one would send `r` aside once
+        it is reported, but `r` was reported first, found no way round it (a corridor, a
+        door) and handed its job back in the same tick (fuzz s21-0677: two robots face to
+        face in a corridor, both jobs handed back)."""
+        for o in blockers:
+            if (
+                o.in_service
+                and o.job is not None
+                and priority[o.id] > priority[r.id]
+                and o.watched_goal is not None
+                and _no_progress(o, t, after / 2)
+            ):
+                self.make_way.ask(o, o.watched_goal, [r], t)
+                if r.aside is not None:
+                    return
+
+    def _gained_on_route(self, r: RobotState, goal: tuple[float, float]) -> bool:
+        """Whether `r` is now `PROGRESS_M` nearer `goal` along its route (the path layer's,
+        robots ignored) than where it last made progress. A route round a wall leads away
+        from the goal as the crow flies: a robot driving it for a deadlock period was taken
+        for a stuck one, and the first robot it met in a door became a blocker it could not
+        route round, so it handed its job back at once (fuzz s21-0204, s21-0677). Asked from
+        half a deadlock period without progress on (a robot stuck then is reported at most
+        half a period late), and measured only once the robot has moved `PROGRESS_M` since
+        it last made progress or was last measured (a stuck robot costs nothing, and one
+        that moved less cannot have gained that much)."""
+        here = (r.x, r.y)
+        if (
+            r.progress_at is None
+            or r.route_seen is None
+            or math.dist(here, r.route_seen) <= PROGRESS_M
+        ):
+            return False
+        r.route_seen = here
+        if r.route_then is None:
+            r.route_then = self._route_length(r, r.progress_at, goal)
+        return self._route_length(r, here, goal) < r.route_then - PROGRESS_M
+
+    def _route_length(
+        self, r: RobotState, start: tuple[float, float], goal: tuple[float, float]
+    ) -> float:
+        """The length (m) of the path layer's route from `start` to `goal` for `r` (as the crow
+        flies where there is none)."""
+        try:
+            return self.make_way.planner_for(r.spec).path(start, goal).length
+        except NoPathError:
+            return math.dist(start, goal)
 
     def _future_plan(self, r: RobotState, t: float) -> tuple[tuple[float, float, float], ...]:
         """The part of `r`'s latest plan from `t` on, starting with where it puts `r` at `t`;

@@ -38,6 +38,7 @@ __all__ = [
     "REST_SPEED",
     "PLAN_HORIZON",
     "PLAN_SAMPLE",
+    "FACE_OFF_S",
 ]
 
 #: Per-axis speed (m/s) below which the robot counts as at rest (rounding, not motion).
@@ -46,6 +47,10 @@ REST_SPEED = 1e-9
 PLAN_HORIZON = 5.0
 #: Spacing (s) of the `Command.plan` samples.
 PLAN_SAMPLE = 1.0
+#: How long (s) a robot held at rest by lower-priority robots at rest on its way waits before
+#: it plans round them (`PathFollower`, rule 3); the deadlock watch waits far longer
+#: (``deadlock_after_s``, 20 to 30 s), and face-offs in the open floor cost that much each.
+FACE_OFF_S = 3.0
 #: How the follower takes print caps (option ``caps``): see `PathFollower`.
 CAP_MODES = ("window", "ahead", "ignore")
 
@@ -113,8 +118,13 @@ class PathFollower(Controller):
     - **deadlock** (rule 3, ``obs.blockers``): the robot plans round the blockers it sees, each
       a temporary obstacle of radius R (`Detour`, built once per set of blockers; less where
       the robot stands closer), and does not yield to them. With no such route it brakes and
-      answers `ControlStatus.BLOCKED` (its agent hands the job back). When the blockers are
-      cleared it brakes to rest and plans the normal route again.
+      answers `ControlStatus.BLOCKED` (its agent hands the job back). Held at rest for
+      `FACE_OFF_S` by lower-priority robots at rest on its way (`Guard.in_the_way`), it plans
+      round them the same way without waiting for the watch; with no way round them it holds
+      (no hand-back) and does not try again until one of them moves. When the blockers are
+      cleared it keeps the detour it drives while each of them stands where it stood
+      (`Guard.route`); once one moves or is out of sight it brakes to rest and plans the
+      normal route again.
 
     Braking and waiting send their plans at once (the stop, or the spot held for
     `PLAN_HORIZON` seconds), so neighbours never see a stale "moving on".
@@ -242,6 +252,11 @@ class PathFollower(Controller):
         self._route_key: tuple[str, ...] | None = None
         self._failed: tuple[object, ...] | None = None
         self._waiting = False
+        # Since when it has been held at rest (None: it is not), the robots at rest in its way
+        # it plans round (`_face_off_check`), and those it found no way round, where they stood.
+        self._held_since: float | None = None
+        self._face_off: tuple[str, ...] = ()
+        self._tried: dict[str, tuple[float, float]] = {}
         # The planner of the current reference, and the rest of its path after a hold.
         self._planner: PathPlanner | None = None
         self._resume: tuple[tuple[float, float], list[tuple[float, float]]] | None = None
@@ -262,7 +277,11 @@ class PathFollower(Controller):
             self._track = None
             return self._brake(obs, ControlStatus.OK)
 
-        route = self._guard.route(obs)
+        # A detour it drives is kept after the watch stops naming its blockers (`Guard.route`).
+        keep = goal == self._goal and self._route_key is not None and self._failed is None
+        if obs.blockers or goal != self._goal or not self._guard.in_place(obs, self._face_off):
+            self._face_off = ()
+        route = self._guard.route(obs, keep, self._face_off)
         key = None if route is None else route.key
         stale = goal != self._goal or cap != self._cap or key != self._route_key
         if self._track is not None and (stale or self._track.off_track(obs)):
@@ -276,7 +295,10 @@ class PathFollower(Controller):
             if obs.x == goal[0] and obs.y == goal[1]:
                 return Command(0.0, 0.0, ControlStatus.OK)  # already there: nothing to plan
             # Without a route round its blockers the robot cannot do its job: hand it back.
+            # A detour kept with no blockers named holds (OK) and is dropped by the attempt.
             failure = ControlStatus.FALLBACK if route is None else ControlStatus.BLOCKED
+            if route is not None and not obs.blockers:
+                failure = ControlStatus.OK
             attempt = (goal, obs.x, obs.y, cap, key)
             if self._failed == attempt:
                 if route is None or not self._guard.blockers_moved(obs):
@@ -297,6 +319,11 @@ class PathFollower(Controller):
                     )
             except NoPathError:
                 self._failed = attempt
+                if self._face_off and not obs.blockers:
+                    # No way round them: the normal route again, and these not tried again
+                    # until one of them moves (the deadlock watch takes it from there).
+                    self._tried = self._guard.where(obs, self._face_off)
+                    self._face_off = ()
                 return self._brake(obs, failure)
             self._goal, self._cap, self._route_key, self._failed = goal, cap, key, None
             self._track, self._planner, self._resume = Track(ref), planner, None
@@ -323,6 +350,7 @@ class PathFollower(Controller):
         ):
             return self._hold(obs, track)  # no creeping: set off only to drive on
         self._waiting = False
+        self._held_since = None
         return cmd
 
     def _hold(self, obs: Observation, track: Track) -> Command:
@@ -337,6 +365,7 @@ class PathFollower(Controller):
         if track.ref.index(obs.t) == 0:
             # Not started yet: start the reference again at the next tick.
             self._track = track.shifted(obs.t + self.context.spec.period)
+        self._face_off_check(obs, track)
         # The hold is news on its first tick, then sent about once per PLAN_SAMPLE like a route.
         send = not self._waiting or obs.tick % self._plan_stride == 0
         self._waiting = True
@@ -344,6 +373,24 @@ class PathFollower(Controller):
             return Command(0.0, 0.0, ControlStatus.OK)
         held = ((obs.t, obs.x, obs.y), (obs.t + PLAN_HORIZON, obs.x, obs.y))
         return Command(0.0, 0.0, ControlStatus.OK, held)
+
+    def _face_off_check(self, obs: Observation, track: Track) -> None:
+        """Held at rest for `FACE_OFF_S` by lower-priority robots at rest on its way (two robots
+        face to face, each keeping clear of the other: the higher one no longer waits for the
+        deadlock watch), the robot plans round them as round blockers (rule 3), from the
+        next tick; one that found no way round them is not tried again until one moves."""
+        if self._held_since is None:
+            self._held_since = obs.t
+        if (
+            obs.blockers
+            or self._face_off
+            or self._goal is None
+            or obs.t - self._held_since < FACE_OFF_S - 1e-9
+        ):
+            return
+        found = self._guard.in_the_way(obs, track, self._cap, self._goal)
+        if found and not self._guard.same_places(obs, found, self._tried):
+            self._face_off = found
 
     def _resumed(self, obs: Observation, planner: PathPlanner) -> Reference | None:
         """A reference along the rest of the path the robot was held on, from where it stopped;

@@ -25,6 +25,7 @@ from fleet_plugins.follower.yielding import (
     braking_path,
     must_yield,
     stops_clear,
+    unseen_step,
 )
 
 if TYPE_CHECKING:
@@ -67,6 +68,8 @@ class Guard:
         self.hold_steps = hold_steps
         self.detour: Detour | None = None
         self._blockers: list[tuple[str, float, float, float]] = []
+        #: Whether the detour is one kept with no blockers named (`route`).
+        self._kept = False
 
     # -- rules 1 and 2 ----------------------------------------------------------------------------
     def braking_after(self, obs: Observation, cmd: Command) -> list[tuple[float, float, float]]:
@@ -84,12 +87,13 @@ class Guard:
         `PathFollower`); if not, it must hold."""
         spec = self.spec
         dt, a_max = spec.period, spec.a_max
-        forecasts = [Forecast.of(n, obs.t, dt, a_max) for n in obs.neighbours]
+        forecasts = [Forecast.of(n, obs.t, dt, a_max, spec.v_max) for n in obs.neighbours]
         # Where it would stop must stay clear a while too: stopping right in the way of a
         # robot about to pass is no stop in time.
         t_stop, x_stop, y_stop = stop[-1]
         held = [(t_stop + i * dt, x_stop, y_stop) for i in range(1, self.hold_steps + 1)]
-        blockers = set(obs.blockers)  # routed round: waiting for them would undo the detour
+        # Routed round: waiting for them would undo the detour.
+        blockers = set(obs.blockers) if self.detour is None else set(self.detour.key)
         higher = [
             f
             for f in forecasts
@@ -111,7 +115,7 @@ class Guard:
         # they were stuck close): hold it to that. Higher ones go first (they route round this
         # one): the robot only moves away from them while that close.
         gaps = None
-        if self.detour is not None and obs.blockers:
+        if self.detour is not None:
             gaps = {
                 f.robot: min(
                     spec.radius + f.radius + self.margin_m, self.detour.clearance[f.robot] - 1e-3
@@ -164,15 +168,34 @@ class Guard:
         return bool(self.floor.free_space_tolerant.covers(LineString(points)))
 
     # -- rule 3 -----------------------------------------------------------------------------------
-    def route(self, obs: Observation) -> Detour | None:
-        """The detour round this observation's blockers (those in sight), None without any."""
-        if not obs.blockers:
-            self.detour = None
-            return None
+    def route(
+        self, obs: Observation, keep: bool = False, face_off: tuple[str, ...] = ()
+    ) -> Detour | None:
+        """The detour round this observation's blockers (those in sight), None without any.
+
+        With `keep` (the robot drives a reference planned on the current detour) and no
+        blockers named any more, the detour is kept while each of its blockers is in sight
+        within `MOVED_M` of where it stood: the deadlock watch stops naming them once the
+        robot has gained a little on its goal, long before it is past them, and dropping the
+        detour then braked it and sent it back onto the normal route, against the same
+        blocker, to wait a whole deadlock period again (fuzz s21-0312: a robot let out of a
+        ring of seven parked robots gained 0.2 to 0.3 m per deadlock period, for 100 s).
+
+        Without blockers named, `face_off` (robots at rest in its way, `in_the_way`) are
+        routed round as blockers are."""
+        named = obs.blockers or face_off
+        if not named:
+            if not (keep and self.detour is not None and self._in_place(obs)):
+                self.detour = None
+            self._kept = self.detour is not None
+            return self.detour
+        if self._kept:
+            # Named again after it was kept: built anew round them where they stand now.
+            self.detour, self._kept = None, False
         seen = {n.robot: n for n in obs.neighbours}
         blockers = [
             (n.robot, n.x, n.y, n.radius)
-            for name in sorted(set(obs.blockers))
+            for name in sorted(set(named))
             if (n := seen.get(name)) is not None
         ]
         if not blockers:
@@ -185,6 +208,59 @@ class Guard:
             self._blockers = blockers
             self.detour = self._build_detour(obs)
         return self.detour
+
+    def in_the_way(
+        self, obs: Observation, track: Track, cap: float, goal: tuple[float, float]
+    ) -> tuple[str, ...]:
+        """The lower-priority neighbours at rest, with no plan to move, within the gap
+        (both radii, the margin and `unseen_step`) of the robot's way over the window it
+        yields over (`may_go`), but not of its goal (there it waits its turn)."""
+        spec = self.spec
+        dt, a_max = spec.period, spec.a_max
+        own = track.ahead(obs, dt, 2.0 * min(cap, spec.v_max) / a_max + self.yield_s)
+        found = []
+        for n in obs.neighbours:
+            if n.priority >= obs.priority or max(abs(n.vx), abs(n.vy)) > 1e-9:
+                continue
+            if any(math.hypot(x - n.x, y - n.y) > MOVED_M for _, x, y in n.plan):
+                continue  # about to leave
+            gap = spec.radius + n.radius + self.margin_m + unseen_step(dt, a_max, spec.v_max)
+            if math.hypot(goal[0] - n.x, goal[1] - n.y) <= gap:
+                continue
+            if any(math.hypot(x - n.x, y - n.y) <= gap for _, x, y in own):
+                found.append(n.robot)
+        return tuple(sorted(found))
+
+    def where(self, obs: Observation, names: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+        """Where each of the neighbours `names` in sight stands."""
+        return {n.robot: (n.x, n.y) for n in obs.neighbours if n.robot in names}
+
+    def same_places(
+        self, obs: Observation, names: tuple[str, ...], places: dict[str, tuple[float, float]]
+    ) -> bool:
+        """Whether each of `names` stands within `MOVED_M` of its place in `places`."""
+        now = self.where(obs, names)
+        return all(
+            name in places and name in now and math.dist(now[name], places[name]) <= MOVED_M
+            for name in names
+        )
+
+    def in_place(self, obs: Observation, names: tuple[str, ...]) -> bool:
+        """Whether each of `names` (robots routed round) is in sight within `MOVED_M` of where
+        it stood when the current detour was built (no detour round them: True)."""
+        if self.detour is None or self.detour.key != names:
+            return True
+        return self._in_place(obs)
+
+    def _in_place(self, obs: Observation) -> bool:
+        """Whether every blocker of the current detour is in sight within `MOVED_M` of where
+        it stood when the detour was built."""
+        seen = {n.robot: n for n in obs.neighbours}
+        for name, x, y, _ in self._blockers:
+            n = seen.get(name)
+            if n is None or math.hypot(n.x - x, n.y - y) > MOVED_M:
+                return False
+        return True
 
     def blockers_moved(self, obs: Observation) -> bool:
         """Whether a blocker of the current detour now stands more than `MOVED_M` from where
@@ -218,7 +294,7 @@ class Guard:
         spec = self.spec
         # Past the gap by the drift a parked robot is granted (`Forecast`), so that the
         # stopping check lets the robot drive the detour past a blocker that sends no plan.
-        drift = math.sqrt(2.0) * spec.a_max * spec.period**2
+        drift = unseen_step(spec.period, spec.a_max, spec.v_max)
         return Detour.build(
             self.floor,
             self._blockers,
