@@ -123,6 +123,9 @@ class MPCController(Controller):
         Cost weights (the paper: Q = R = I).
     corridor:
         Reference chords either side of the expected progress whose regions a step may use.
+    corridor_steps:
+        The steps (1, 2, ...) that get the whole corridor; later ones only the chords from the
+        reference's to the expected progress: their binaries cost the most search.
     max_nodes:
         Branch-and-bound nodes per solve (HiGHS ``mip_max_nodes``): the solve's stopping
         rule, which depends on the inputs only, so the same seed gives the same run however
@@ -169,6 +172,7 @@ class MPCController(Controller):
         q_velocity: float = 1.0,
         r_input: float = 1.0,
         corridor: int = 1,
+        corridor_steps: int = 6,
         time_limit_s: float = 10.0,
         max_nodes: int = DEFAULT_MAX_NODES,
         warm_start: bool = True,
@@ -187,6 +191,7 @@ class MPCController(Controller):
             q_velocity=q_velocity,
             r_input=r_input,
             corridor=corridor,
+            corridor_steps=corridor_steps,
             time_limit_s=time_limit_s,
             max_nodes=max_nodes,
             warm_start=warm_start,
@@ -202,6 +207,7 @@ class MPCController(Controller):
         self.horizon = horizon
         self.weights = (float(q_position), float(q_velocity), float(r_input))
         self.corridor = corridor
+        self.corridor_steps = corridor_steps
         self.time_limit_s = float(time_limit_s)
         self.max_nodes = max_nodes
         self.warm_start = warm_start
@@ -215,7 +221,8 @@ class MPCController(Controller):
     def __repr__(self) -> str:
         return (
             f"MPCController(horizon={self.horizon}, weights={self.weights}, "
-            f"corridor={self.corridor}, time_limit_s={self.time_limit_s}, "
+            f"corridor={self.corridor}, corridor_steps={self.corridor_steps}, "
+            f"time_limit_s={self.time_limit_s}, "
             f"max_nodes={self.max_nodes}, warm_start={self.warm_start}, "
             f"interface={self.interface.value!r}, cost={self.cost!r}, "
             f"avoid_robots={self.avoid_robots}, separation_margin_m={self.separation_margin_m}, "
@@ -403,6 +410,7 @@ class MPCController(Controller):
             trip,
             horizon=self.horizon,
             corridor=self.corridor,
+            corridor_steps=self.corridor_steps,
             progress=self._progress,
             last=self._last if on_plan else None,
             wide=wide,

@@ -26,6 +26,7 @@ def check_options(
     q_velocity: object,
     r_input: object,
     corridor: object,
+    corridor_steps: object,
     time_limit_s: object,
     warm_start: object,
     interface: object,
@@ -48,8 +49,9 @@ def check_options(
     ):
         if not _non_negative(w):
             raise ValueError(f"MPCController option {label} = {w!r}: must be a number >= 0")
-    if isinstance(corridor, bool) or not isinstance(corridor, int) or corridor < 0:
-        raise ValueError(f"MPCController option corridor = {corridor!r}: must be an integer >= 0")
+    for label, count in (("corridor", corridor), ("corridor_steps", corridor_steps)):
+        if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+            raise ValueError(f"MPCController option {label} = {count!r}: must be an integer >= 0")
     if not _non_negative(time_limit_s) or time_limit_s == 0:
         raise ValueError(
             f"MPCController option time_limit_s = {time_limit_s!r}: must be a number > 0"
