@@ -623,6 +623,8 @@ def test_a_horizon_shorter_than_braking_from_full_speed_is_refused() -> None:
         ("q_velocity", float("nan")),
         ("r_input", "1"),
         ("corridor", -1),
+        ("corridor_steps", -1),
+        ("corridor_steps", 2.0),
         ("warm_start", "yes"),
     ],
 )
@@ -633,6 +635,21 @@ def test_a_bad_option_is_refused_naming_the_option_and_the_value(
         MPCController(**{option: value})  # type: ignore[arg-type]
     with pytest.raises(PluginError, match=f"'mpc'.*{option}"):
         load_controller("mpc", {option: value})
+
+
+def test_far_steps_get_only_the_progress_s_chords_and_the_robot_still_turns_the_corner() -> None:
+    # Round the L machine (several regions on the way): steps after `corridor_steps` lose the
+    # corridor's extra chords, so the solves carry fewer binaries; the plan still has room to
+    # go round the machine and arrive safely.
+    goal = (18.0, 5.0)
+    binaries = {}
+    for steps in (0, 3, 8):
+        loop = Loop.start(MPCController(horizon=8, corridor_steps=steps), L_HALL, (2.0, 5.0))
+        assert loop.drive(goal, limit=80), steps
+        assert loop.violations() == []
+        binaries[steps] = np.mean(loop.controller.binaries)
+    # 8 = the horizon: every step gets the corridor, as before the option.
+    assert binaries[0] < binaries[3] < binaries[8]
 
 
 def test_a_horizon_reaching_past_the_cap_look_ahead_is_refused_in_reset() -> None:
