@@ -418,7 +418,8 @@ def test_solver_failures_every_few_ticks_around_a_machine_stay_safe_and_arrive(
 ) -> None:
     start, goal = (2.0, 5.0), (18.0, 5.0)
     floor = l_hall(zone=True)
-    controller = MPCController(horizon=8, warm_start=False, interface=interface)
+    # reuse_ticks = 0: a tick that followed its plan would not solve, so not fail.
+    controller = MPCController(horizon=8, warm_start=False, interface=interface, reuse_ticks=0)
     loop = Loop.start(controller, floor, start, SPEC_1S)
     for _ in range(150):
         if loop.arrived(goal):
@@ -792,7 +793,7 @@ def test_the_quadratic_cost_drives_safely_and_more_smoothly_than_the_1_norm() ->
 def test_a_refinement_stopped_by_the_clock_falls_back_and_is_reported_as_a_time_limit() -> None:
     # Whether the QP finished in time depends on the machine, so its step must not use the
     # MILP's plan instead (that would make the run depend on the machine's speed too).
-    controller = MPCController(horizon=8, cost="quadratic")
+    controller = MPCController(horizon=8, cost="quadratic", reuse_ticks=0)  # every tick solves
     loop = Loop.start(controller, CORRIDOR, (2.0, 2.0), SPEC_HALF)
     for _ in range(4):
         assert loop.step((18.0, 2.0)).status is ControlStatus.OK

@@ -46,7 +46,12 @@ from fleet_plugins.mpc.neighbours import (
     must_hold,
     robots_to_avoid,
 )
-from fleet_plugins.mpc.options import DEFAULT_MAX_NODES, check_horizon, check_options
+from fleet_plugins.mpc.options import (
+    DEFAULT_MAX_NODES,
+    check_horizon,
+    check_options,
+    default_reuse_ticks,
+)
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
@@ -159,8 +164,9 @@ class MPCController(Controller):
     reuse_ticks:
         Follow the previous plan, one step on, for up to this many ticks without a solve while
         the robot is on it, it keeps this tick's print caps and no other robot can come within
-        reach of it (`reuse`); any of those events, or the age, brings a solve. 0 (default):
-        solve every tick. Such a tick's command carries no `SolveReport`.
+        reach of it (`reuse`); any of those events, or the age, brings a solve; such a tick's
+        command carries no `SolveReport`. None (default): 4, or ``horizon - 1`` if that is
+        less (`options.default_reuse_ticks`). 0: solve every tick.
     """
 
     name = "mpc"
@@ -182,9 +188,11 @@ class MPCController(Controller):
         separation_margin_m: float = 0.1,
         max_neighbours: int = 3,
         respect_priority: bool = True,
-        reuse_ticks: int = 0,
+        reuse_ticks: int | None = None,
     ) -> None:
         super().__init__()
+        if reuse_ticks is None and isinstance(horizon, int) and not isinstance(horizon, bool):
+            reuse_ticks = default_reuse_ticks(horizon)
         self.interface = check_options(
             horizon=horizon,
             q_position=q_position,
