@@ -25,7 +25,14 @@ from fleet.engine.agents import (
     split_robots,
 )
 from fleet.errors import ScenarioError
-from fleet.scenario import REPO_ROOT, BusConfig, JobsConfig, ScriptedJob, load_scenario
+from fleet.scenario import (
+    REPO_ROOT,
+    BusConfig,
+    JobsConfig,
+    PluginChoice,
+    ScriptedJob,
+    load_scenario,
+)
 
 FLEET = REPO_ROOT / "scenarios" / "fleet.toml"
 
@@ -143,8 +150,11 @@ def test_same_seed_same_digest_with_0_1_and_2_workers():
 
 
 def mpc_fleet_scenario():
-    """Six MPC robots on the shipped fleet scenario for 120 s."""
-    return fleet_scenario(robots=6, duration=120.0, controller="mpc")
+    """Six MPC robots on the shipped fleet scenario for 120 s, solving every tick
+    (``reuse_ticks = 0``: every plan depends on the others', and tests/test_mpc_reuse.py
+    compares its reusing fleet with this one)."""
+    base = fleet_scenario(robots=6, duration=120.0, controller="mpc")
+    return replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 0}))
 
 
 @cache

@@ -418,7 +418,8 @@ def test_solver_failures_every_few_ticks_around_a_machine_stay_safe_and_arrive(
 ) -> None:
     start, goal = (2.0, 5.0), (18.0, 5.0)
     floor = l_hall(zone=True)
-    controller = MPCController(horizon=8, warm_start=False, interface=interface)
+    # reuse_ticks = 0: a tick that followed its plan would not solve, so not fail.
+    controller = MPCController(horizon=8, warm_start=False, interface=interface, reuse_ticks=0)
     loop = Loop.start(controller, floor, start, SPEC_1S)
     for _ in range(150):
         if loop.arrived(goal):
@@ -623,6 +624,8 @@ def test_a_horizon_shorter_than_braking_from_full_speed_is_refused() -> None:
         ("q_velocity", float("nan")),
         ("r_input", "1"),
         ("corridor", -1),
+        ("corridor_steps", -1),
+        ("corridor_steps", 2.0),
         ("warm_start", "yes"),
     ],
 )
@@ -633,6 +636,21 @@ def test_a_bad_option_is_refused_naming_the_option_and_the_value(
         MPCController(**{option: value})  # type: ignore[arg-type]
     with pytest.raises(PluginError, match=f"'mpc'.*{option}"):
         load_controller("mpc", {option: value})
+
+
+def test_far_steps_get_only_the_progress_s_chords_and_the_robot_still_turns_the_corner() -> None:
+    # Round the L machine (several regions on the way): steps after `corridor_steps` lose the
+    # corridor's extra chords, so the solves carry fewer binaries; the plan still has room to
+    # go round the machine and arrive safely.
+    goal = (18.0, 5.0)
+    binaries = {}
+    for steps in (0, 3, 8):
+        loop = Loop.start(MPCController(horizon=8, corridor_steps=steps), L_HALL, (2.0, 5.0))
+        assert loop.drive(goal, limit=80), steps
+        assert loop.violations() == []
+        binaries[steps] = np.mean(loop.controller.binaries)
+    # 8 = the horizon: every step gets the corridor, as before the option.
+    assert binaries[0] < binaries[3] < binaries[8]
 
 
 def test_a_horizon_reaching_past_the_cap_look_ahead_is_refused_in_reset() -> None:
@@ -775,7 +793,7 @@ def test_the_quadratic_cost_drives_safely_and_more_smoothly_than_the_1_norm() ->
 def test_a_refinement_stopped_by_the_clock_falls_back_and_is_reported_as_a_time_limit() -> None:
     # Whether the QP finished in time depends on the machine, so its step must not use the
     # MILP's plan instead (that would make the run depend on the machine's speed too).
-    controller = MPCController(horizon=8, cost="quadratic")
+    controller = MPCController(horizon=8, cost="quadratic", reuse_ticks=0)  # every tick solves
     loop = Loop.start(controller, CORRIDOR, (2.0, 2.0), SPEC_HALF)
     for _ in range(4):
         assert loop.step((18.0, 2.0)).status is ControlStatus.OK

@@ -49,6 +49,11 @@ START, GOAL = (2.0, 5.0), (18.0, 5.0)
 Path2 = Callable[[float], tuple[float, float]]
 
 
+def solving_mpc(**options: object) -> MPCController:
+    """An MPC that solves every tick (``reuse_ticks = 0``): these tests judge each solve."""
+    return MPCController(**{"reuse_ticks": 0, **options})  # type: ignore[arg-type]
+
+
 def crossing(t: float) -> tuple[float, float]:
     """A robot driving north across the hall at x = 10, at the centre line at t = 10 s, which is
     where and when the MPC robot gets there driving east along y = 5."""
@@ -126,7 +131,7 @@ class Run:
 
 @pytest.mark.parametrize("other", [crossing, parked], ids=["crossing", "parked"])
 def test_the_plan_keeps_the_radii_apart_from_the_other_robot_at_every_step(other: Path2) -> None:
-    run = Run(MPCController(horizon=12), other)
+    run = Run(solving_mpc(horizon=12), other)
     assert run.drive(80)
     for cmd in run.commands:
         assert cmd.status is ControlStatus.OK
@@ -142,15 +147,15 @@ def test_the_plan_keeps_the_radii_apart_from_the_other_robot_at_every_step(other
 
 
 def test_without_separation_the_same_robot_runs_into_the_crossing_one() -> None:
-    run = Run(MPCController(horizon=12, avoid_robots=False), crossing)
+    run = Run(solving_mpc(horizon=12, avoid_robots=False), crossing)
     assert run.drive(80)
     assert min(run.gaps) < CONTACT  # so the test above can fail
     assert set(run.controller.separation_binaries) == {0}
 
 
 def test_a_robot_out_of_reach_adds_no_binaries_and_changes_nothing() -> None:
-    alone = Run(MPCController(horizon=8), None)
-    beside = Run(MPCController(horizon=8), far_away)
+    alone = Run(solving_mpc(horizon=8), None)
+    beside = Run(solving_mpc(horizon=8), far_away)
     for _ in range(24):
         a, b = alone.step(), beside.step()
         assert (a.ax, a.ay, a.status) == (b.ax, b.ay, b.status)
@@ -161,7 +166,7 @@ def test_a_robot_out_of_reach_adds_no_binaries_and_changes_nothing() -> None:
 
 
 def test_a_robot_with_no_plan_is_taken_to_stay_where_it_is() -> None:
-    run = Run(MPCController(horizon=12), parked, with_plan=False)
+    run = Run(solving_mpc(horizon=12), parked, with_plan=False)
     assert run.drive(80)
     assert min(run.gaps) >= CONTACT + 0.1 - 1e-6
     assert max(len(r) for r in run.controller.separation_robots) == 1
@@ -172,21 +177,21 @@ def test_a_robot_with_no_plan_is_taken_to_stay_where_it_is() -> None:
 
 def test_a_higher_priority_robot_keeps_its_course_unless_the_lower_one_is_parked_or_close() -> None:
     # r1 has priority 0; here the other robot has -1, so r1 goes first.
-    ahead = Run(MPCController(horizon=12), crossing, priority=-1)
-    respect_none = Run(MPCController(horizon=12, respect_priority=False), crossing, priority=-1)
+    ahead = Run(solving_mpc(horizon=12), crossing, priority=-1)
+    respect_none = Run(solving_mpc(horizon=12, respect_priority=False), crossing, priority=-1)
     for _ in range(12):  # until the other robot is still 3 m from r1's line at t = 6 s
         ahead.step()
         respect_none.step()
     assert set(ahead.controller.separation_robots) == {()}  # moving and far: it yields to r1
     assert ("r2",) in respect_none.controller.separation_robots
     # Parked lower-priority robots are avoided all the same.
-    run = Run(MPCController(horizon=12), parked, priority=-1)
+    run = Run(solving_mpc(horizon=12), parked, priority=-1)
     assert run.drive(80)
     assert min(run.gaps) >= CONTACT + 0.1 - 1e-6
 
 
 def test_equal_priorities_are_ordered_by_robot_id() -> None:
-    run = Run(MPCController(horizon=12), crossing, priority=0)  # "r1" < "r2": r1 goes first
+    run = Run(solving_mpc(horizon=12), crossing, priority=0)  # "r1" < "r2": r1 goes first
     for _ in range(12):
         run.step()
     assert set(run.controller.separation_robots) == {()}
@@ -196,7 +201,7 @@ def test_equal_priorities_are_ordered_by_robot_id() -> None:
 
 
 def test_a_fallback_brakes_rather_than_follow_its_old_plan_into_another_robot() -> None:
-    controller = MPCController(horizon=8, warm_start=False)
+    controller = solving_mpc(horizon=8, warm_start=False)
     run = Run(controller, None)
     for _ in range(8):
         run.step()
@@ -221,7 +226,7 @@ def test_a_fallback_brakes_rather_than_follow_its_old_plan_into_another_robot() 
 
 
 def test_with_no_robot_on_it_the_fallback_still_follows_the_old_plan() -> None:
-    controller = MPCController(horizon=8, warm_start=False)
+    controller = solving_mpc(horizon=8, warm_start=False)
     run = Run(controller, far_away)
     for _ in range(8):
         run.step()
@@ -287,10 +292,10 @@ def test_bad_fleet_options_are_refused(option: str, value: object, rule: str) ->
 def test_the_pyomo_interface_and_the_quadratic_cost_keep_clear_too() -> None:
     # Both interfaces solve the same MILP on every observation: the same optimal cost (their
     # plans may differ where the cost has several optima) and both keep clear.
-    direct = Run(MPCController(horizon=12), crossing)
-    shadow = MPCController(horizon=12, interface="pyomo")
+    direct = Run(solving_mpc(horizon=12), crossing)
+    shadow = solving_mpc(horizon=12, interface="pyomo")
     shadow.reset(ControllerContext("r1", SPEC, HALL, PathPlanner(HALL, 1.0, 0.5)))
-    pyomo = Run(MPCController(horizon=12, interface="pyomo"), crossing)
+    pyomo = Run(solving_mpc(horizon=12, interface="pyomo"), crossing)
     for _ in range(24):
         direct.step(shadow=shadow)
         pyomo.step()
@@ -300,7 +305,7 @@ def test_the_pyomo_interface_and_the_quadratic_cost_keep_clear_too() -> None:
     assert max(direct.controller.separation_binaries) > 0
     assert max(shadow.separation_binaries) > 0
     assert min(pyomo.gaps) >= CONTACT + 0.1 - 1e-6
-    quadratic = Run(MPCController(horizon=12, cost="quadratic"), crossing)
+    quadratic = Run(solving_mpc(horizon=12, cost="quadratic"), crossing)
     assert quadratic.drive(80)
     assert quadratic.controller.qp_failures == 0
     # Every solved plan keeps clear (a robot parked on its goal holds without a solve).

@@ -123,6 +123,15 @@ def test_a_robot_out_of_reach_does_not_stop_the_reuse() -> None:
     assert max(unsolved_runs(solved)) <= 4
 
 
+def test_the_default_reuses_4_ticks_and_stays_below_a_short_horizon() -> None:
+    assert MPCController().reuse_ticks == 4
+    assert MPCController(horizon=5).reuse_ticks == 4
+    assert MPCController(horizon=4).reuse_ticks == 3  # a plan followed N ticks has run out
+    assert MPCController(horizon=2).reuse_ticks == 1
+    assert MPCController(reuse_ticks=0).reuse_ticks == 0
+    assert load_controller("mpc", {"horizon": 3}).reuse_ticks == 2  # type: ignore[attr-defined]
+
+
 @pytest.mark.parametrize("value", [-1, 1.5, True, "2", 25])
 def test_a_bad_reuse_ticks_is_refused(value: object) -> None:
     with pytest.raises(ValueError, match=f"reuse_ticks = {re.escape(repr(value))}: must"):
@@ -135,9 +144,8 @@ def test_a_fleet_reusing_plans_is_safe_and_the_same_with_0_and_2_workers() -> No
     # Through the engine: 6 MPC robots on the shop floor with reuse, in this process and in
     # two worker processes: the same digest (a reuse depends on the observation only), no
     # violation, and fewer solves than the same fleet solving every tick.
-    base = mpc_fleet_scenario()  # the shipped fleet.toml, 6 robots, 120 s, "mpc"
+    base = mpc_fleet_scenario()  # the shipped fleet.toml, 6 robots, 120 s, solving every tick
     reusing = replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 4}))
-    base = replace(base, controller=PluginChoice("mpc", {"reuse_ticks": 0}))
     results = [World(reusing, workers=w).run() for w in (0, 2)]
     summaries = [r.summary for r in results]
     for result, s in zip(results, summaries, strict=True):

@@ -46,7 +46,12 @@ from fleet_plugins.mpc.neighbours import (
     must_hold,
     robots_to_avoid,
 )
-from fleet_plugins.mpc.options import DEFAULT_MAX_NODES, check_horizon, check_options
+from fleet_plugins.mpc.options import (
+    DEFAULT_MAX_NODES,
+    check_horizon,
+    check_options,
+    default_reuse_ticks,
+)
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import clear_of_all, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
@@ -123,6 +128,9 @@ class MPCController(Controller):
         Cost weights (the paper: Q = R = I).
     corridor:
         Reference chords either side of the expected progress whose regions a step may use.
+    corridor_steps:
+        The steps (1, 2, ...) that get the whole corridor; later ones only the chords from the
+        reference's to the expected progress: their binaries cost the most search.
     max_nodes:
         Branch-and-bound nodes per solve (HiGHS ``mip_max_nodes``): the solve's stopping
         rule, which depends on the inputs only, so the same seed gives the same run however
@@ -156,8 +164,9 @@ class MPCController(Controller):
     reuse_ticks:
         Follow the previous plan, one step on, for up to this many ticks without a solve while
         the robot is on it, it keeps this tick's print caps and no other robot can come within
-        reach of it (`reuse`); any of those events, or the age, brings a solve. 0 (default):
-        solve every tick. Such a tick's command carries no `SolveReport`.
+        reach of it (`reuse`); any of those events, or the age, brings a solve; such a tick's
+        command carries no `SolveReport`. None (default): 4, or ``horizon - 1`` if that is
+        less (`options.default_reuse_ticks`). 0: solve every tick.
     """
 
     name = "mpc"
@@ -169,6 +178,7 @@ class MPCController(Controller):
         q_velocity: float = 1.0,
         r_input: float = 1.0,
         corridor: int = 1,
+        corridor_steps: int = 6,
         time_limit_s: float = 10.0,
         max_nodes: int = DEFAULT_MAX_NODES,
         warm_start: bool = True,
@@ -178,15 +188,18 @@ class MPCController(Controller):
         separation_margin_m: float = 0.1,
         max_neighbours: int = 3,
         respect_priority: bool = True,
-        reuse_ticks: int = 0,
+        reuse_ticks: int | None = None,
     ) -> None:
         super().__init__()
+        if reuse_ticks is None and isinstance(horizon, int) and not isinstance(horizon, bool):
+            reuse_ticks = default_reuse_ticks(horizon)
         self.interface = check_options(
             horizon=horizon,
             q_position=q_position,
             q_velocity=q_velocity,
             r_input=r_input,
             corridor=corridor,
+            corridor_steps=corridor_steps,
             time_limit_s=time_limit_s,
             max_nodes=max_nodes,
             warm_start=warm_start,
@@ -202,6 +215,7 @@ class MPCController(Controller):
         self.horizon = horizon
         self.weights = (float(q_position), float(q_velocity), float(r_input))
         self.corridor = corridor
+        self.corridor_steps = corridor_steps
         self.time_limit_s = float(time_limit_s)
         self.max_nodes = max_nodes
         self.warm_start = warm_start
@@ -215,7 +229,8 @@ class MPCController(Controller):
     def __repr__(self) -> str:
         return (
             f"MPCController(horizon={self.horizon}, weights={self.weights}, "
-            f"corridor={self.corridor}, time_limit_s={self.time_limit_s}, "
+            f"corridor={self.corridor}, corridor_steps={self.corridor_steps}, "
+            f"time_limit_s={self.time_limit_s}, "
             f"max_nodes={self.max_nodes}, warm_start={self.warm_start}, "
             f"interface={self.interface.value!r}, cost={self.cost!r}, "
             f"avoid_robots={self.avoid_robots}, separation_margin_m={self.separation_margin_m}, "
@@ -403,6 +418,7 @@ class MPCController(Controller):
             trip,
             horizon=self.horizon,
             corridor=self.corridor,
+            corridor_steps=self.corridor_steps,
             progress=self._progress,
             last=self._last if on_plan else None,
             wide=wide,

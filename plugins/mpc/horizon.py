@@ -33,13 +33,16 @@ def step_data(
     progress: int,
     last: Solution | None,
     wide: bool = False,
+    corridor_steps: int | None = None,
 ) -> tuple[StepData, int]:
     """Bounds, corridor and reference window for this tick, and the robot's progress.
 
     `progress` is the robot's sample along the reference at the previous tick; `last` the
     previous plan when the robot is on it (in this trip), else None. `wide` opens every step's
     corridor back to the robot's own progress, for when the plan cannot keep pace with the
-    reference window (the retry after an infeasible solve).
+    reference window (the retry after an infeasible solve). Steps after `corridor_steps`
+    (None: none) use only the chords between the reference's and the expected progress, unless
+    `wide`.
     """
     N, dt, a = horizon, spec.period, spec.a_max
     ref = trip.reference
@@ -81,8 +84,11 @@ def step_data(
         shifted = np.vstack([last.p[1:], last.p[-1:]])
         expected = trip.progress(shifted, progress, N + PROGRESS_WINDOW)
     z_ub = np.zeros((N - 1, len(trip.regions)))
-    w = corridor
+    # Far steps' region choices are the costliest to search and are solved again before the
+    # robot gets there; near ones need room to go round a neighbour.
+    near = N if wide or corridor_steps is None else corridor_steps
     for k in range(1, N):
+        w = corridor if k <= near else 0
         lo = min(expected[k], chord[k]) - w
         if wide:
             lo = min(lo, progress - w)
