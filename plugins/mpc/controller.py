@@ -31,7 +31,7 @@ from fleet.plugins import (
 )
 from fleet_plugins.mpc.crowd import solve_clear
 from fleet_plugins.mpc.fallback import brake, park, plan_points, shifted, stays_put
-from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
+from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, into_regions, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
 from fleet_plugins.mpc.neighbours import (
     brake_runs_into,
@@ -271,6 +271,7 @@ class MPCController(Controller):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
         self._reused = 0
+        obs = into_regions(obs, self.context.floor, self._trip)  # a hair outside: at the edge
         data, warm = self._step_data(obs)
         solution, separation = self._solve(obs, data, warm)
         if solution.outcome is SolverOutcome.INFEASIBLE:
