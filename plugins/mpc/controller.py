@@ -41,7 +41,7 @@ from fleet_plugins.mpc.neighbours import (
 from fleet_plugins.mpc.options import DEFAULT_MAX_NODES, check_horizon, check_options
 from fleet_plugins.mpc.recover import fall_back
 from fleet_plugins.mpc.refine import refine_milp
-from fleet_plugins.mpc.reuse import clear_of_all, within_caps
+from fleet_plugins.mpc.reuse import clear_of_all, on_plan, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
 from fleet_plugins.mpc.start import StartGate
 from fleet_plugins.mpc.trip import Trip
@@ -52,8 +52,6 @@ __all__ = ["MPCController"]
 #: solve: the optimum there is to stay.
 PARKED_SPEED = 1e-6
 PARKED_DISTANCE = 1e-3
-#: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
-PLAN_MATCH = 1e-6
 
 
 def parked(obs: Observation, goal: tuple[float, float], radius: float) -> bool:
@@ -438,26 +436,16 @@ class MPCController(Controller):
         return solution, separation
 
     def _on_plan(self, obs: Observation) -> bool:
-        """Whether the robot is where the last usable plan said it would be now."""
-        last = self._last
-        if last is None or last.p is None or last.v is None:
-            return False
-        if abs(obs.t - self._last_t - self.context.spec.period) > 1e-9:
-            return False
-        return (
-            max(abs(last.p[1, 0] - obs.x), abs(last.p[1, 1] - obs.y)) <= PLAN_MATCH
-            and max(abs(last.v[1, 0] - obs.vx), abs(last.v[1, 1] - obs.vy)) <= PLAN_MATCH
-        )
+        """Whether the robot is where the last usable plan said (`reuse.on_plan`)."""
+        return on_plan(obs, self._last, self._last_t, self.context.spec.period)
 
     # -- fallbacks ------------------------------------------------------------------------------
     def _fallback(self, obs: Observation, report: SolveReport) -> Command:
         """The shifted previous plan or braking (`recover.fall_back`); then a new trip."""
-        on_plan = self._on_plan(obs)
-        self._model = None  # plan a new trip next tick
-        spec, floor = self.context.spec, self.context.floor
+        here, self._model = self._on_plan(obs), None  # (None: plan a new trip next tick)
+        ctx = self.context
         command, self._last = fall_back(
-            obs, spec, self.horizon, floor, self._last, on_plan, self.avoid_robots, report
+            obs, ctx.spec, self.horizon, ctx.floor, self._last, here, self.avoid_robots, report
         )
-        if self._last is not None:
-            self._last_t = obs.t
+        self._last_t = obs.t if self._last is not None else self._last_t
         return command
