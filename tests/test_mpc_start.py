@@ -23,7 +23,13 @@ from fleet.paths import PathPlanner
 from fleet.plugins import ControllerContext, ControlStatus, Neighbour, Observation, RobotSpec
 from fleet.scenario import load_scenario
 from fleet_plugins.mpc.controller import MPCController
-from fleet_plugins.mpc.neighbours import closest_approach, must_announce, must_hold
+from fleet_plugins.mpc.neighbours import (
+    close,
+    closest_approach,
+    must_announce,
+    must_hold,
+    robots_to_avoid,
+)
 
 CASE = Path(__file__).resolve().parent / "contact_cases" / "both_start_from_rest"
 SPEC = RobotSpec(v_max=0.79, a_max=1.49, radius=0.378, period=0.95)
@@ -90,3 +96,34 @@ def test_the_fuzz_case_where_both_set_off_at_once_never_touches() -> None:
     t2, p2, _ = world.recorder.trajectories["r02"].arrays()
     assert np.array_equal(t1, t2)
     assert closest_approach(p1, p2) >= 2 * 0.378 - 1e-9
+
+
+def test_a_higher_robot_keeps_clear_of_a_lower_one_that_shows_its_start() -> None:
+    # r02 (lower) at rest at the origin shows its start: at rest this tick, then along +x. r01
+    # (higher) at rest 4 m away on that line is not close by their velocities (both at rest),
+    # yet it keeps clear of r02's spot and plan: keeping its course it planned through where
+    # r02 stood, and r02, setting off next tick, could not keep clear of that plan (an
+    # infeasible solve: 33 of the 121 fallbacks of the 40-robot sweep).
+    spec = RobotSpec(v_max=1.0, a_max=1.0, radius=0.4, period=0.2)
+    t, n = 10.0, 25
+    shown = ((t, 0.0, 0.0), (t + 0.2, 0.0, 0.0)) + tuple(
+        (t + 0.2 * k, 0.02 * (k - 1) ** 2, 0.0) for k in range(2, 8)
+    )
+    lower = Neighbour("r02", 0.0, 0.0, 0.0, 0.0, 0.4, 3, shown)
+    obs = Observation("r01", 50, t, 4.0, 0.0, 0.0, 0.0, goal=(-4.0, 0.0), neighbours=(lower,),
+                      priority=4)  # fmt: skip
+    half = 2 * 0.4 + 0.1
+    assert not close(obs, lower, spec, half) and not must_hold(obs, spec, n, 0.1)
+    box = np.full((n + 1, 2), 10.0)
+    picked = robots_to_avoid(obs, spec, n, -box, box, margin=0.1, respect_priority=True)
+    assert [ob.robot for ob in picked] == ["r02"]
+    # Its box holds r02's spot at every step, and its plan's last point from then on.
+    ob = picked[0]
+    assert np.all(np.abs(ob.centres) <= ob.half - half + 1e-9)
+    assert np.all(np.abs(ob.centres[7:] - shown[-1][1:]) <= ob.half[7:] - half + 1e-9)
+    # The same robot moving away along its plan, not close either, is left to yield as before.
+    moving = Neighbour("r02", 0.0, 0.0, 0.2, 0.0, 0.4, 3, shown[1:])
+    obs = Observation("r01", 50, t, 4.0, 0.0, 0.0, 0.0, goal=(-4.0, 0.0), neighbours=(moving,),
+                      priority=4)  # fmt: skip
+    assert not close(obs, moving, spec, half)
+    assert robots_to_avoid(obs, spec, n, -box, box, margin=0.1, respect_priority=True) == []

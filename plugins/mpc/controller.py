@@ -3,7 +3,7 @@
 Per control tick: take the measured state, pick the reference window and the corridor of
 regions each horizon step may use (`horizon`) and the robots to keep clear of (`neighbours`),
 update the trip's model (`model.TripModel`), solve it with HiGHS (refined by `refine` for the
-quadratic cost) and apply the first input, or fall back (`fallback`). The trip model is built
+quadratic cost) and apply the first input, or fall back (`recover`). The trip model is built
 once per reference and updated in place; a new goal, or a fallback, starts a new trip. The
 controller keeps what lasts from tick to tick (the trip, the last plan, the counts of
 benchmarks) and its options (`options` checks them).
@@ -30,19 +30,11 @@ from fleet.plugins import (
     SolverOutcome,
 )
 from fleet_plugins.mpc.crowd import solve_clear
-from fleet_plugins.mpc.fallback import (
-    brake,
-    follow_previous,
-    park,
-    plan_points,
-    shifted,
-    stays_put,
-)
-from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, region_bounds, step_data
+from fleet_plugins.mpc.fallback import brake, park, plan_points, shifted, stays_put
+from fleet_plugins.mpc.horizon import PROGRESS_WINDOW, into_regions, region_bounds, step_data
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
 from fleet_plugins.mpc.neighbours import (
     brake_runs_into,
-    clear_of_neighbours,
     must_hold,
     robots_to_avoid,
 )
@@ -52,8 +44,9 @@ from fleet_plugins.mpc.options import (
     check_options,
     default_reuse_ticks,
 )
+from fleet_plugins.mpc.recover import fall_back
 from fleet_plugins.mpc.refine import refine_milp
-from fleet_plugins.mpc.reuse import clear_of_all, within_caps
+from fleet_plugins.mpc.reuse import clear_of_all, on_plan, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
 from fleet_plugins.mpc.start import StartGate
 from fleet_plugins.mpc.trip import Trip
@@ -64,8 +57,6 @@ __all__ = ["MPCController"]
 #: solve: the optimum there is to stay.
 PARKED_SPEED = 1e-6
 PARKED_DISTANCE = 1e-3
-#: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
-PLAN_MATCH = 1e-6
 
 
 def parked(obs: Observation, goal: tuple[float, float], radius: float) -> bool:
@@ -113,12 +104,12 @@ class MPCController(Controller):
     into, solving again (`crowd`: in a crowd the plan ran through the fourth or fifth).
 
     When a solve gives no usable solution (node limit without incumbent, the wall-clock guard,
-    infeasible, solver error) the controller falls back: the previous plan shifted by one step if
-    the robot is on it and it keeps clear of every neighbour's predicted position, between the
-    steps too (it ends at rest), else braking (`fallback.brake`: kept in the free space; with
-    neighbours about, its path is the plan). It then plans a new trip, as it does after a plan that
-    keeps it at rest off its goal with nobody about (`fallback.stays_put`). Each solved tick's
-    command carries a `SolveReport`.
+    infeasible, solver error) the controller falls back (`recover`): the previous plan shifted by
+    one step if the robot is on it and it keeps clear of every neighbour's predicted position,
+    between the steps too (it ends at rest), else braking (`fallback.brake`: kept in the free
+    space; with neighbours about, its path is the plan). It then plans a new trip, as it does
+    after a plan that keeps it at rest off its goal with nobody about (`fallback.stays_put`).
+    Each solved tick's command carries a `SolveReport`.
 
     Parameters
     ----------
@@ -293,6 +284,7 @@ class MPCController(Controller):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
         self._reused = 0
+        obs = into_regions(obs, self.context.floor, self._trip)  # a hair outside: at the edge
         data, warm = self._step_data(obs)
         solution, separation = self._solve(obs, data, warm)
         if solution.outcome is SolverOutcome.INFEASIBLE:
@@ -460,32 +452,16 @@ class MPCController(Controller):
         return solution, separation
 
     def _on_plan(self, obs: Observation) -> bool:
-        """Whether the robot is where the last usable plan said it would be now."""
-        last = self._last
-        if last is None or last.p is None or last.v is None:
-            return False
-        if abs(obs.t - self._last_t - self.context.spec.period) > 1e-9:
-            return False
-        return (
-            max(abs(last.p[1, 0] - obs.x), abs(last.p[1, 1] - obs.y)) <= PLAN_MATCH
-            and max(abs(last.v[1, 0] - obs.vx), abs(last.v[1, 1] - obs.vy)) <= PLAN_MATCH
-        )
+        """Whether the robot is where the last usable plan said (`reuse.on_plan`)."""
+        return on_plan(obs, self._last, self._last_t, self.context.spec.period)
 
     # -- fallbacks ------------------------------------------------------------------------------
     def _fallback(self, obs: Observation, report: SolveReport) -> Command:
-        """The shifted previous plan if the robot is on it and it keeps clear of the other
-        robots, else braking; then a new trip."""
-        on_plan = self._on_plan(obs)
-        self._model = None  # plan a new trip next tick
-        if on_plan and obs.neighbours and self.avoid_robots:
-            assert self._last is not None and self._last.p is not None
-            shifted_p = np.vstack([self._last.p[1:], self._last.p[-1:]])
-            on_plan = clear_of_neighbours(obs, self.context.spec, shifted_p)
-        if on_plan:
-            assert self._last is not None
-            command, shifted = follow_previous(obs, self._last, self.context.spec.period, report)
-            self._last, self._last_t = shifted, obs.t
-            return command
-        self._last, spec = None, self.context.spec
-        cmd = brake(obs, spec, self.horizon, ControlStatus.FALLBACK, self.context.floor)
-        return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report)
+        """The shifted previous plan or braking (`recover.fall_back`); then a new trip."""
+        here, self._model = self._on_plan(obs), None  # (None: plan a new trip next tick)
+        ctx = self.context
+        command, self._last = fall_back(
+            obs, ctx.spec, self.horizon, ctx.floor, self._last, here, self.avoid_robots, report
+        )
+        self._last_t = obs.t if self._last is not None else self._last_t
+        return command

@@ -9,18 +9,41 @@ reachable boxes to the regions the steps may use, for the separation rows.
 
 from __future__ import annotations
 
-import numpy as np
+import dataclasses
 
+import numpy as np
+from shapely.geometry import Point
+from shapely.ops import nearest_points
+
+from fleet.floor import BOUNDARY_BAND, Floor
 from fleet.paths import Reference
 from fleet.plugins import Observation, RobotSpec
 from fleet.printing import CapSchedule
 from fleet_plugins.mpc.model import Solution, StepData
 from fleet_plugins.mpc.trip import Trip, reach_boxes
 
-__all__ = ["PROGRESS_WINDOW", "step_data", "reference_window", "region_bounds"]
+__all__ = ["PROGRESS_WINDOW", "step_data", "reference_window", "region_bounds", "into_regions"]
 
 #: How far ahead (samples) the progress search along the reference looks.
 PROGRESS_WINDOW = 8
+
+
+def into_regions(obs: Observation, floor: Floor, trip: Trip) -> Observation:
+    """`obs`, or, its position outside every region of the trip by at most `BOUNDARY_BAND`
+    (the floor checker's band), `obs` at the nearest point of the nearest of them.
+
+    The first plan point is fixed by the measured state, so a robot a hair outside its regions
+    makes every solve infeasible, and every new trip from there too (fuzz case s42-0010: a
+    robot pressed against a region's edge drifted across it at 8e-10 m/s, a speed under
+    `fallback.REST_SPEED` that nothing cancelled, and stood 150 s, 438 infeasible solves).
+    """
+    p = np.array([obs.x, obs.y])
+    out = [float(np.max(floor.regions[r].A @ p - floor.regions[r].b)) for r in trip.regions]
+    n = int(np.argmin(out))
+    if out[n] <= 0.0 or out[n] > BOUNDARY_BAND:
+        return obs
+    q = nearest_points(floor.regions[trip.regions[n]].polygon, Point(obs.x, obs.y))[0]
+    return dataclasses.replace(obs, x=float(q.x), y=float(q.y))
 
 
 def step_data(

@@ -17,9 +17,13 @@ import numpy as np
 from fleet.plugins import Observation, RobotSpec
 from fleet.printing import CapSchedule
 from fleet_plugins.mpc.fallback import braking_path
+from fleet_plugins.mpc.model import Solution
 from fleet_plugins.mpc.separation import predict
 
-__all__ = ["within_caps", "clear_of_all"]
+#: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
+PLAN_MATCH = 1e-6
+
+__all__ = ["PLAN_MATCH", "within_caps", "clear_of_all", "on_plan"]
 
 #: Tolerance (m/s) of the cap check (the solves' feasibility tolerance is 1e-9).
 _CAP_TOL = 1e-9
@@ -58,3 +62,16 @@ def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float
         if not apart.any(axis=1).all():
             return False
     return True
+
+
+def on_plan(obs: Observation, last: Solution | None, last_t: float, dt: float) -> bool:
+    """Whether the robot is where the last usable plan `last`, made at `last_t` one period
+    `dt` ago, said it would be now (to `PLAN_MATCH`)."""
+    if last is None or last.p is None or last.v is None:
+        return False
+    if abs(obs.t - last_t - dt) > 1e-9:
+        return False
+    return (
+        max(abs(last.p[1, 0] - obs.x), abs(last.p[1, 1] - obs.y)) <= PLAN_MATCH
+        and max(abs(last.v[1, 0] - obs.vx), abs(last.v[1, 1] - obs.vy)) <= PLAN_MATCH
+    )
