@@ -12,7 +12,7 @@ from functools import cache
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from fleet.engine.safety import check_steps
@@ -106,8 +106,10 @@ def assert_obeys_the_fixed_regions(sol: Solution, data: StepData, regions: np.nd
     # The measured state, the dynamics and the input bound.
     np.testing.assert_allclose(p[0], data.p_lo[0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(v[0], data.v_lo[0], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(p[1:], p[:-1] + DT * v[:-1], rtol=0, atol=1e-9)
-    np.testing.assert_allclose(v[1:], v[:-1] + DT * u, rtol=0, atol=1e-9)
+    # The dynamics are rows of the QP too: they hold to HiGHS's feasibility tolerance (the
+    # example at step 43 misses by 1.4e-8 m).
+    np.testing.assert_allclose(p[1:], p[:-1] + DT * v[:-1], rtol=0, atol=ROW_TOL)
+    np.testing.assert_allclose(v[1:], v[:-1] + DT * u, rtol=0, atol=ROW_TOL)
     assert np.all(np.abs(u) <= A_MAX)
     # The step's bounds (reachable boxes, speed bounds, rest at the end).
     assert np.all(p >= data.p_lo - ROW_TOL) and np.all(p <= data.p_hi + ROW_TOL)
@@ -132,6 +134,7 @@ def assert_obeys_the_fixed_regions(sol: Solution, data: StepData, regions: np.nd
 
 
 @settings(max_examples=20, deadline=None)
+@example(i=43, dx=0.0, dy=0.0, free_end=True)  # found by a random run, not the derandomized one
 @given(
     i=st.integers(0, 90),
     dx=st.floats(-0.4, 0.4),

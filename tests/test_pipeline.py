@@ -17,7 +17,7 @@ from fleet.bus import AgentHost, Exchange
 from fleet.engine import World
 from fleet.errors import ScenarioError
 from fleet.plugins import Command, Controller, ControlStatus, Observation
-from fleet.scenario import REPO_ROOT, load_scenario
+from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
 from tests.test_fleet import check_accounting, fleet_scenario
 
 NO_VIOLATIONS = {"obstacle": 0, "speed_zone": 0, "print_speed": 0, "collision": 0}
@@ -188,6 +188,8 @@ def test_pipelined_mpc_robots_keep_clear_and_give_the_same_run_with_0_and_2_work
     # In this process and in two worker processes (one worker takes the path of two, with
     # every robot in one share; the followers' test above runs 4).
     sc = pipelined(busy_fleet(6, 60.0, "mpc"))
+    # Every tick solves (reuse_ticks = 0): each solve depends on the plans the workers passed.
+    sc = replace(sc, controller=PluginChoice("mpc", {**sc.controller.options, "reuse_ticks": 0}))
     results = [World(sc, workers=w).run() for w in (0, 2)]
     summaries = [r.summary for r in results]
     for result, s in zip(results, summaries, strict=True):
