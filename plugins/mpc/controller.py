@@ -46,7 +46,7 @@ from fleet_plugins.mpc.options import (
 )
 from fleet_plugins.mpc.recover import fall_back
 from fleet_plugins.mpc.refine import refine_milp
-from fleet_plugins.mpc.reuse import clear_of_all, on_plan, within_caps
+from fleet_plugins.mpc.reuse import RepeatWatch, clear_of_all, on_plan, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
 from fleet_plugins.mpc.start import StartGate
 from fleet_plugins.mpc.trip import Trip
@@ -245,6 +245,7 @@ class MPCController(Controller):
         self._progress = 0
         self._failed: tuple[Any, ...] | None = None
         self._reused = 0  # ticks the latest solved plan has been followed without a solve
+        self._repeats = RepeatWatch()
         self._go = StartGate(self.respect_priority and self.avoid_robots, self.separation_margin_m)
         #: Ticks that followed the previous plan instead of solving (`reuse_ticks`).
         self.reuses = 0
@@ -283,7 +284,8 @@ class MPCController(Controller):
         if hold and not brake_runs_into(obs, spec, self.horizon):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
-        self._reused = 0
+        # A state met again in this trip: a cycle of reused plans; solve every tick from now.
+        self._reused = self.reuse_ticks if self._repeats.solved_from(obs, self._trip) else 0
         obs = into_regions(obs, self.context.floor, self._trip)  # a hair outside: at the edge
         data, warm = self._step_data(obs)
         solution, separation = self._solve(obs, data, warm)

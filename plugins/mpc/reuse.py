@@ -23,7 +23,7 @@ from fleet_plugins.mpc.separation import predict
 #: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
 PLAN_MATCH = 1e-6
 
-__all__ = ["PLAN_MATCH", "within_caps", "clear_of_all", "on_plan"]
+__all__ = ["PLAN_MATCH", "within_caps", "clear_of_all", "on_plan", "RepeatWatch"]
 
 #: Tolerance (m/s) of the cap check (the solves' feasibility tolerance is 1e-9).
 _CAP_TOL = 1e-9
@@ -75,3 +75,32 @@ def on_plan(obs: Observation, last: Solution | None, last_t: float, dt: float) -
         max(abs(last.p[1, 0] - obs.x), abs(last.p[1, 1] - obs.y)) <= PLAN_MATCH
         and max(abs(last.v[1, 0] - obs.vx), abs(last.v[1, 1] - obs.vy)) <= PLAN_MATCH
     )
+
+
+class RepeatWatch:
+    """Whether a trip's solves have started from the same state twice: a plan that brings the
+    robot back to where a solve started, followed without a solve, is solved alike from there,
+    for good. In fuzz case s21-0613 an MPC robot held 0.2 m short of a corner went back and
+    forth on such a 5-tick plan (4 reused ticks, one solve) for the last 100 s, too little
+    motion to count as progress and too much to count as stuck; solving every tick, it was
+    reported and let through. Once a state repeats, the trip solves every tick."""
+
+    #: Solve states remembered (cycles up to this many solves long are caught).
+    KEEP = 8
+
+    def __init__(self) -> None:
+        self._trip: object = None
+        self._states: list[tuple[float, float, float, float]] = []
+        self.repeated = False
+
+    def solved_from(self, obs: Observation, trip: object) -> bool:
+        """Note a solve from `obs`'s state in `trip`; whether some solve of the trip has
+        started from a state within `PLAN_MATCH` of another's."""
+        if trip is not self._trip:
+            self._trip, self._states, self.repeated = trip, [], False
+        state = (obs.x, obs.y, obs.vx, obs.vy)
+        close = (max(abs(a - b) for a, b in zip(state, s, strict=True)) for s in self._states)
+        if any(d <= PLAN_MATCH for d in close):
+            self.repeated = True
+        self._states = [*self._states[-(self.KEEP - 1) :], state]
+        return self.repeated
