@@ -34,6 +34,7 @@ from fleet.errors import NoPathError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec
+from fleet.plugins.robot import unseen_step
 
 __all__ = ["MakeWay", "Aside", "AWAY_M", "HOLD_FACTOR", "PASSED_FACTOR"]
 
@@ -83,12 +84,9 @@ class Aside:
 
 def kept_gap(robot: RobotState) -> float:
     """The gap (m) `robot` keeps from a neighbour on top of the two radii: the follower's
-    margin and the step a neighbour may take unseen in one period
-    (``sqrt(2) min(a_max dt, v_max) dt``, the follower's `unseen_step`)."""
+    margin and the step a neighbour may take unseen in one period (`unseen_step`)."""
     spec = robot.spec
-    return FOLLOWER_MARGIN_M + math.sqrt(2.0) * min(spec.a_max * spec.period, spec.v_max) * (
-        spec.period
-    )
+    return FOLLOWER_MARGIN_M + unseen_step(spec.period, spec.a_max, spec.v_max)
 
 
 class MakeWay:

@@ -14,11 +14,12 @@ velocity ``v[k]``; the safety checker judges exactly that segment.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DoubleIntegrator", "brake_input", "clip"]
+__all__ = ["DoubleIntegrator", "brake_input", "clip", "unseen_step"]
 
 
 def clip(value: float, bound: float) -> float:
@@ -74,3 +75,15 @@ class DoubleIntegrator:
         dt, a = self.dt, self.a_max
         ax, ay = clip(ax, a), clip(ay, a)
         return x + dt * vx, y + dt * vy, vx + dt * ax, vy + dt * ay
+
+
+def unseen_step(dt: float, a_max: float, v_max: float = math.inf) -> float:
+    """How far (m) a robot can stray in one step of unknown acceleration from where braking or
+    its plan put it: its velocity changes by at most ``a_max * dt`` per axis, and, bounded by
+    ``v_max`` per axis, by at most ``v_max`` beyond braking to rest, so the step ends at most
+    ``min(a_max * dt, v_max) * dt`` per axis further. At a coarse period the speed bound is the
+    tighter one (period 1 s, a_max 1.96, v_max 0.73: 1.03 m instead of 2.77 m): followers kept
+    2.77 m more than the radii from every neighbour, froze face to face metres apart in open
+    floor, and jobs waited to the end of the run (fuzz s21-0388, s21-0691). The follower keeps
+    it from its neighbours, and the engine's making way allows for it (`fleet.engine.makeway`)."""
+    return math.sqrt(2.0) * min(a_max * dt, v_max) * dt

@@ -29,7 +29,7 @@ from fleet.floor import Floor, convex_pieces
 from fleet.floor.build import GRID
 from fleet.paths import PathPlanner
 from fleet.plugins import Neighbour
-from fleet.plugins.robot import brake_input
+from fleet.plugins.robot import brake_input, unseen_step
 
 __all__ = [
     "DEFAULT_MARGIN_M",
@@ -58,17 +58,6 @@ _MAX_BRAKE_STEPS = 10_000  # a guard only: braking from any finite speed ends lo
 #: m: a neighbour this much further than the gap from a path's bounding box is out of reach
 #: for sure (the distances measured round by far less: a few 1e-14 m on a floor of 100 m).
 _SURE_M = 1e-6
-
-
-def unseen_step(dt: float, a_max: float, v_max: float = math.inf) -> float:
-    """How far (m) a robot can stray in one step of unknown acceleration from where braking or
-    its plan put it: its velocity changes by at most ``a_max * dt`` per axis, and, bounded by
-    ``v_max`` per axis, by at most ``v_max`` beyond braking to rest, so the step ends at most
-    ``min(a_max * dt, v_max) * dt`` per axis further. At a coarse period the speed bound is the
-    tighter one (period 1 s, a_max 1.96, v_max 0.73: 1.03 m instead of 2.77 m): followers kept
-    2.77 m more than the radii from every neighbour, froze face to face metres apart in open
-    floor, and jobs waited to the end of the run (fuzz s21-0388, s21-0691)."""
-    return math.sqrt(2.0) * min(a_max * dt, v_max) * dt
 
 
 def braking_path(
