@@ -255,12 +255,8 @@ class Guard:
     def _in_place(self, obs: Observation) -> bool:
         """Whether every blocker of the current detour is in sight within `MOVED_M` of where
         it stood when the detour was built."""
-        seen = {n.robot: n for n in obs.neighbours}
-        for name, x, y, _ in self._blockers:
-            n = seen.get(name)
-            if n is None or math.hypot(n.x - x, n.y - y) > MOVED_M:
-                return False
-        return True
+        places = {name: (x, y) for name, x, y, _ in self._blockers}
+        return self.same_places(obs, tuple(places), places)
 
     def blockers_moved(self, obs: Observation) -> bool:
         """Whether a blocker of the current detour now stands more than `MOVED_M` from where
