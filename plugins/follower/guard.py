@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from shapely.geometry import LineString
 
 from fleet.plugins import Command, Observation, RobotSpec
-from fleet.plugins.robot import clip
+from fleet.plugins.robot import clip, neighbour_stray
 from fleet_plugins.follower.track import Track
 from fleet_plugins.follower.yielding import (
     Detour,
@@ -213,7 +213,7 @@ class Guard:
         self, obs: Observation, track: Track, cap: float, goal: tuple[float, float]
     ) -> tuple[str, ...]:
         """The lower-priority neighbours at rest, with no plan to move, within the gap
-        (both radii, the margin and `unseen_step`) of the robot's way over the window it
+        (both radii, the margin and `neighbour_stray`) of the robot's way over the window it
         yields over (`may_go`), but not of its goal (there it waits its turn)."""
         spec = self.spec
         dt, a_max = spec.period, spec.a_max
@@ -224,7 +224,7 @@ class Guard:
                 continue
             if any(math.hypot(x - n.x, y - n.y) > MOVED_M for _, x, y in n.plan):
                 continue  # about to leave
-            gap = spec.radius + n.radius + self.margin_m + unseen_step(dt, a_max, spec.v_max)
+            gap = spec.radius + n.radius + self.margin_m + neighbour_stray(n, spec)
             if math.hypot(goal[0] - n.x, goal[1] - n.y) <= gap:
                 continue
             if any(math.hypot(x - n.x, y - n.y) <= gap for _, x, y in own):
@@ -290,7 +290,11 @@ class Guard:
         spec = self.spec
         # Past the gap by the drift a parked robot is granted (`Forecast`), so that the
         # stopping check lets the robot drive the detour past a blocker that sends no plan.
-        drift = unseen_step(spec.period, spec.a_max, spec.v_max)
+        names = {b[0] for b in self._blockers}
+        drift = max(
+            [neighbour_stray(n, spec) for n in obs.neighbours if n.robot in names],
+            default=unseen_step(spec.period, spec.a_max, spec.v_max),
+        )
         return Detour.build(
             self.floor,
             self._blockers,
