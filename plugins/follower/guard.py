@@ -13,8 +13,11 @@ import math
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numpy as np
+import shapely
 from shapely.geometry import LineString
 
+from fleet.floor import BOUNDARY_BAND
 from fleet.plugins import Command, Observation, RobotSpec
 from fleet.plugins.robot import clip, neighbour_stray
 from fleet_plugins.follower.track import Track
@@ -33,6 +36,9 @@ if TYPE_CHECKING:
     from fleet.paths import PathPlanner
 
 __all__ = ["Guard", "MOVED_M"]
+
+#: Speed (m/s) over a limit below which rounding is forgiven (the safety checker's).
+_SPEED_TOL = 1e-6
 
 #: A blocker that moved further than this (m) since a detour round it found no way is looked
 #: at again where it stands now.
@@ -70,6 +76,9 @@ class Guard:
         self._blockers: list[tuple[str, float, float, float]] = []
         #: Whether the detour is one kept with no blockers named (`route`).
         self._kept = False
+        #: Each region's per-axis limit, and the floor's slowest per axis (`stops_within_limits`).
+        self._limits = np.array([r.v_max for r in floor.regions], dtype=float).reshape(-1, 2)
+        self._slowest = self._limits.min(axis=0, initial=np.inf)
 
     # -- rules 1 and 2 ----------------------------------------------------------------------------
     def braking_after(self, obs: Observation, cmd: Command) -> list[tuple[float, float, float]]:
@@ -166,6 +175,23 @@ class Guard:
         if all(p == points[0] for p in points):
             return True
         return bool(self.floor.free_space_tolerant.covers(LineString(points)))
+
+    def stops_within_limits(self, obs: Observation, stop: list[tuple[float, float, float]]) -> bool:
+        """Whether braking along `stop` (`braking_after` a command) keeps to the speed limit of
+        every region it enters: per axis, no step of it faster than the limit of a region whose
+        core it reaches (`Floor.region_cores`, as the safety checker judges). Checked with
+        `stops_inside`, for the same reason: a robot a neighbour held on a path that skirted a
+        slow zone at a bend braked straight on, into the zone at 0.61 m/s where 0.33 was the
+        limit (fuzz s31-0360). Steps slower than the floor's slowest limit are not measured."""
+        pts = np.array([(obs.x, obs.y)] + [(x, y) for _, x, y in stop])
+        speed = np.abs(np.diff(pts, axis=0)) / self.spec.period
+        fast = np.flatnonzero(np.any(speed > self._slowest + _SPEED_TOL, axis=1))
+        if not len(fast):
+            return True
+        lines = shapely.linestrings(np.stack([pts[:-1][fast], pts[1:][fast]], axis=1))
+        line_i, reg_i = self.floor.tree.query(lines, predicate="intersects")
+        hit = shapely.intersects(lines[line_i], self.floor.region_cores(BOUNDARY_BAND)[reg_i])
+        return not np.any(speed[fast][line_i[hit]] > self._limits[reg_i[hit]] + _SPEED_TOL)
 
     # -- rule 3 -----------------------------------------------------------------------------------
     def route(
