@@ -62,6 +62,7 @@ from fleet.bus.schema import (
     MAX_MESSAGE_BYTES,
     MAX_ROBOTS,
     MAX_TEXT_CHARS,
+    SCHEMA_VERSION,
     MessageKind,
     decode,
     encode,
@@ -323,9 +324,13 @@ class Generator:
         self.rng.shuffle(robots)
         if self.rng.random() < 0.5:
             body: dict[str, Any] = {"robots": robots, "scenario": ""}
-            return _dumps({"version": 4, "kind": "hello", "sender": "a", "tick": 0, "body": body})
+            return _dumps(
+                {"version": SCHEMA_VERSION, "kind": "hello", "sender": "a", "tick": 0, "body": body}
+            )
         body = {"accepted": robots, "rejected": {}}
-        return _dumps({"version": 4, "kind": "welcome", "sender": "x", "tick": 0, "body": body})
+        return _dumps(
+            {"version": SCHEMA_VERSION, "kind": "welcome", "sender": "x", "tick": 0, "body": body}
+        )
 
     def _bounds(self) -> bytes:
         which = self.rng.choice(
@@ -367,7 +372,9 @@ def hello_ids(n: int, duplicate: bool) -> bytes:
     """A HELLO naming `n` robots, the last one twice if `duplicate`."""
     robots = [f"r{i}" for i in range(n)] + ([f"r{n - 1}"] if duplicate else [])
     body = {"robots": robots, "scenario": ""}
-    return _dumps({"version": 4, "kind": "hello", "sender": "a", "tick": 0, "body": body})
+    return _dumps(
+        {"version": SCHEMA_VERSION, "kind": "hello", "sender": "a", "tick": 0, "body": body}
+    )
 
 
 def _big_frame(which: str) -> bytes:
@@ -379,18 +386,32 @@ def _big_frame(which: str) -> bytes:
         cmd = {"ax": 0.0, "ay": 0.0, "status": "ok", "plan": [], "solve": None}
         commands = {f"r{i}": cmd for i in range(MAX_ROBOTS + 1)}
         body = {"commands": commands, "bids": [], "handbacks": []}
-        return _dumps({"version": 4, "kind": "act", "sender": "a", "tick": 1, "body": body})
+        return _dumps(
+            {"version": SCHEMA_VERSION, "kind": "act", "sender": "a", "tick": 1, "body": body}
+        )
     if which == "long_sender":
         body = {"reason": "x"}
         return _dumps(
-            {"version": 4, "kind": "bye", "sender": "s" * 1_000_000, "tick": 1, "body": body}
+            {
+                "version": SCHEMA_VERSION,
+                "kind": "bye",
+                "sender": "s" * 1_000_000,
+                "tick": 1,
+                "body": body,
+            }
         )
     if which.startswith(("act_full", "observe_full")):
         return _full_frame(which.startswith("act"), which.endswith("bad_last"))
     if which == "oversized_valid_json":
         reason = "x" * MAX_MESSAGE_BYTES
         return _dumps(
-            {"version": 4, "kind": "bye", "sender": "a", "tick": 1, "body": {"reason": reason}}
+            {
+                "version": SCHEMA_VERSION,
+                "kind": "bye",
+                "sender": "a",
+                "tick": 1,
+                "body": {"reason": reason},
+            }
         )
     return b" " * (MAX_MESSAGE_BYTES + 1)
 
@@ -423,7 +444,7 @@ def _full_frame(act: bool, bad_last: bool) -> bytes:
     else:
         body = {"t": 1.0, "observations": items, "announcements": []}
     kind = "act" if act else "observe"
-    return _dumps({"version": 4, "kind": kind, "sender": "a", "tick": 1, "body": body})
+    return _dumps({"version": SCHEMA_VERSION, "kind": kind, "sender": "a", "tick": 1, "body": body})
 
 
 # --- in process ------------------------------------------------------------------------------

@@ -244,8 +244,9 @@ def test_observation_round_trips_with_neighbours_plan_and_none_goal():
         assert observation_from_wire(json.loads(json.dumps(wire))) == obs
     assert observation_to_wire(OBS_IDLE)["goal"] is None
     assert json.loads(json.dumps(observation_to_wire(OBS_FULL)["neighbours"])) == [
-        ["r2", 4.0, -2.0, 0.1, 0.0, 0.35, 3, [[1.75, 4.0, -2.0], [2.0, 4.025, -2.0]]],
-        ["r3", 1.0, 1.0, 0.0, -0.2, 0.4, 0, []],
+        ["r2", 4.0, -2.0, 0.1, 0.0, 0.35, 3, [[1.75, 4.0, -2.0], [2.0, 4.025, -2.0]]]
+        + [None, None, None],
+        ["r3", 1.0, 1.0, 0.0, -0.2, 0.4, 0, [], None, None, None],
     ]
 
 
@@ -341,7 +342,13 @@ def test_any_finite_observation_and_command_survive_the_wire_exactly(obs, cmd, t
 
 
 def envelope(**over) -> dict:
-    env = {"version": 4, "kind": "bye", "sender": "a", "tick": 3, "body": {"reason": "x"}}
+    env = {
+        "version": SCHEMA_VERSION,
+        "kind": "bye",
+        "sender": "a",
+        "tick": 3,
+        "body": {"reason": "x"},
+    }
     env.update(over)
     return env
 
@@ -405,7 +412,8 @@ MALFORMED = [
     (raw([1, 2, 3]), "must be a JSON object"),
     (raw(envelope(version=1)), "version = 1: unsupported schema version"),
     (raw(envelope(version=3)), "version = 3: unsupported schema version"),
-    (raw(envelope(version=5)), "version = 5: unsupported schema version"),
+    (raw(envelope(version=4)), "version = 4: unsupported schema version"),
+    (raw(envelope(version=6)), "version = 6: unsupported schema version"),
     (raw(envelope(version="1")), "version = '1'"),
     (raw({"kind": "bye"}), "version = None"),
     (raw(envelope(kind="shout")), "kind = 'shout': must be one of 'hello'"),
@@ -434,7 +442,8 @@ MALFORMED = [
     (raw(observe_with(neighbours=[["r2", 1, 2, "a", 4, 0.4, 0, []]])), "neighbours[0] = 'a'"),
     (
         raw(observe_with(neighbours=[["r2", 1, 2, 3, 4]])),
-        "neighbours[0] = ['r2', 1, 2, 3, 4]: must be [robot, x, y, vx, vy, radius, priority, plan]",
+        "neighbours[0] = ['r2', 1, 2, 3, 4]: must be [robot, x, y, vx, vy, radius, priority, plan,"
+        " v_max, a_max, period]",
     ),
     (raw(observe_with(colour="red")), "unexpected field(s) ['colour']"),
     (raw(act_with(status="panic")), "status = 'panic': must be one of 'ok'"),
@@ -554,10 +563,10 @@ def test_command_to_wire_checks_what_plugins_return():
         command_to_wire(Command(0.0, 0.0, plan=((0.0, 1.0, 2.0), (1.0, 2.0))))  # type: ignore[arg-type]
 
 
-def test_the_wire_format_is_version_4_as_documented():
+def test_the_wire_format_is_version_5_as_documented():
     env = json.loads(encode(MessageKind.OBSERVE, "exchange", 7, BODIES[MessageKind.OBSERVE]))
     assert list(env) == ["version", "kind", "sender", "tick", "body"]
-    assert env["version"] == SCHEMA_VERSION == 4
+    assert env["version"] == SCHEMA_VERSION == 5
     assert (env["kind"], env["sender"], env["tick"]) == ("observe", "exchange", 7)
     assert list(env["body"]) == ["t", "observations", "announcements"]
     obs = env["body"]["observations"][0]
@@ -574,8 +583,9 @@ def test_the_wire_format_is_version_4_as_documented():
         "job": "job-3",
         "speed_cap": 0.3,
         "neighbours": [
-            ["r2", 4.0, -2.0, 0.1, 0.0, 0.35, 3, [[1.75, 4.0, -2.0], [2.0, 4.025, -2.0]]],
-            ["r3", 1.0, 1.0, 0.0, -0.2, 0.4, 0, []],
+            ["r2", 4.0, -2.0, 0.1, 0.0, 0.35, 3, [[1.75, 4.0, -2.0], [2.0, 4.025, -2.0]]]
+            + [None, None, None],
+            ["r3", 1.0, 1.0, 0.0, -0.2, 0.4, 0, [], None, None, None],
         ],
         "speed_caps": [[1.75, 21.0, 0.3], [21.0, 51.0, 0.5]],
         "print_end_s": 1242.5,
@@ -739,7 +749,7 @@ def test_cut_or_altered_frames_decode_or_raise_message_error(frame, data):
 
 
 def bye_with(reason: bytes = b'"x"', tick: bytes = b"3") -> bytes:
-    return b'{"version":4,"kind":"bye","sender":"a","tick":%s,"body":{"reason":%s}}' % (
+    return b'{"version":5,"kind":"bye","sender":"a","tick":%s,"body":{"reason":%s}}' % (
         tick,
         reason,
     )

@@ -139,7 +139,7 @@ def dealer() -> Iterator[Callable[[str], zmq.Socket]]:
         sock.close(linger=0)
 
 
-# --- schema v4 -----------------------------------------------------------------------------------
+# --- schema v4 and v5 -----------------------------------------------------------------------------
 
 PLAN = ((2.0, 4.0, -2.0), (2.25, 4.05, -1.95), (2.5, 4.1, -1.9))
 OBS = Observation(
@@ -153,7 +153,7 @@ OBS = Observation(
     goal=(10.0, 4.0),
     job="job-3",
     neighbours=(
-        Neighbour("r2", 4.0, -2.0, 0.2, 0.05, 0.3, 7, PLAN),
+        Neighbour("r2", 4.0, -2.0, 0.2, 0.05, 0.3, 7, PLAN, 1.6, 2.0, 0.5),
         Neighbour("r3", 1.0, 1.0, 0.0, -0.2, 0.5, -1),
     ),
     priority=12,
@@ -162,8 +162,9 @@ OBS = Observation(
 )
 
 
-def test_version_4_carries_the_fleet_fields_both_ways():
-    assert SCHEMA_VERSION == 4
+def test_version_5_carries_the_fleet_fields_both_ways():
+    # v4 added the fleet fields; v5 a neighbour's limits (r2's known, r3's not: null)
+    assert SCHEMA_VERSION == 5
     offers = [Announcement("j1", 5.0, 6.0, 300.0, 1.5, None), Announcement("j2", 0, 0, 0, 0, 9)]
     body = {"t": 2.0, "observations": [OBS], "announcements": offers}
     assert decode(encode(MessageKind.OBSERVE, "exchange", 8, body)).body == body
@@ -189,7 +190,11 @@ def test_version_4_carries_the_fleet_fields_both_ways():
         0.3,
         7,
         [list(p) for p in PLAN],
+        1.6,
+        2.0,
+        0.5,
     ]
+    assert wire["observations"][0]["neighbours"][1][8:] == [None, None, None]
     assert (wire["observations"][0]["priority"], wire["observations"][0]["queued"]) == (12, 2)
 
 
@@ -197,7 +202,7 @@ def test_integers_on_the_wire_become_floats_in_neighbour_plans():
     # Another implementation may write 2 for 2.0; the plan still holds floats.
     wire = observation_to_wire(OBS)
     wire["neighbours"][0][7] = [[2, 4, -2], [2.25, 4.05, -1.95]]
-    env = {"version": 4, "kind": "observe", "sender": "x", "tick": 8}
+    env = {"version": SCHEMA_VERSION, "kind": "observe", "sender": "x", "tick": 8}
     env["body"] = {"t": 2.0, "observations": [wire], "announcements": []}
     plan = decode(raw(env)).body["observations"][0].neighbours[0].plan
     assert plan == ((2.0, 4.0, -2.0), (2.25, 4.05, -1.95))
@@ -230,7 +235,9 @@ def observe_with(**fields) -> bytes:
     obs = observation_to_wire(OBS)
     obs.update(fields)
     body = {"t": 1.0, "observations": [obs], "announcements": []}
-    return raw({"version": 4, "kind": "observe", "sender": "x", "tick": 1, "body": body})
+    return raw(
+        {"version": SCHEMA_VERSION, "kind": "observe", "sender": "x", "tick": 1, "body": body}
+    )
 
 
 def neighbour_with(index: int, value: object) -> bytes:
@@ -240,7 +247,7 @@ def neighbour_with(index: int, value: object) -> bytes:
 
 
 def body_of(kind: str, **body) -> bytes:
-    return raw({"version": 4, "kind": kind, "sender": "x", "tick": 1, "body": body})
+    return raw({"version": SCHEMA_VERSION, "kind": kind, "sender": "x", "tick": 1, "body": body})
 
 
 GOOD_ACT = {"commands": {}, "bids": [], "handbacks": []}
@@ -260,9 +267,12 @@ MALFORMED = [
     (neighbour_with(7, [[2.0, 4.0]]), "neighbours[0].plan[0] = [2.0, 4.0]: must be a [t, x, y]"),
     (neighbour_with(7, [[2.0, 4.0, True]]), "neighbours[0].plan[0] = True: must be a finite"),
     (neighbour_with(7, [[2.0, 4.0, -1.0], "x"]), "neighbours[0].plan[1] = 'x'"),
+    (neighbour_with(8, 0.0), "neighbours[0].v_max = 0.0: must be > 0 or null"),
+    (neighbour_with(9, -2.0), "neighbours[0].a_max = -2.0: must be > 0 or null"),
+    (neighbour_with(10, "slow"), "neighbours[0].period = 'slow': must be a finite number"),
     (
         observe_with(neighbours=[["r2", 4.0, -2.0, 0.2, 0.05]]),
-        "must be [robot, x, y, vx, vy, radius, priority, plan]",
+        "must be [robot, x, y, vx, vy, radius, priority, plan, v_max, a_max, period]",
     ),
     (body_of("observe", t=0.0, observations=[]), "body: missing field(s) announcements"),
     (

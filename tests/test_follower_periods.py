@@ -19,6 +19,7 @@ import tempfile
 from collections import defaultdict
 from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, assume, given, note, settings
 from hypothesis import strategies as st
 from shapely.geometry import box
@@ -27,6 +28,8 @@ from fleet.engine import World
 from fleet.errors import MapError, NoPathError, ScenarioError
 from fleet.floor import Floor, FloorSpec, Station, compile_floor
 from fleet.paths import PathPlanner
+from fleet.plugins import Neighbour, RobotSpec
+from fleet.plugins.robot import neighbour_stray, unseen_step
 from fleet.scenario import (
     JobsConfig,
     PluginChoice,
@@ -35,6 +38,7 @@ from fleet.scenario import (
     ScriptedJob,
     sensing_needed,
 )
+from fleet_plugins.follower.yielding import Forecast
 from tests.test_properties import random_floor
 
 RADIUS = 0.4
@@ -198,3 +202,90 @@ def test_followers_of_mixed_periods_never_touch(
     contacts, _ = contacts_of(world)
     assert contacts == []
     assert summary["distance_m"] >= 1.0
+
+
+@settings(
+    max_examples=8, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+@given(
+    floor=st.one_of(empty_hall(), random_floor()),
+    limits=st.lists(
+        st.tuples(
+            st.sampled_from([0.3, 0.6, 1.0, 1.6]),  # v_max
+            st.sampled_from([0.3, 0.5, 1.0, 2.0]),  # a_max
+            st.sampled_from([0.25, 0.5, 1.0]),  # period_s
+        ),
+        min_size=2,
+        max_size=2,
+        unique=True,
+    ),
+    seed=st.integers(0, 1000),
+    gaps=st.lists(st.floats(0.0, 6.0), min_size=3, max_size=5),
+)
+def test_followers_of_mixed_limits_never_touch(
+    floor: Floor, limits: list[tuple[float, float, float]], seed: int, gaps: list[float]
+) -> None:
+    note(f"limits (v_max, a_max, period) {limits}, seed {seed}")
+    groups = tuple(
+        RobotsConfig(count=2, start=("a", "b"), radius=RADIUS, v_max=v, a_max=a, period_s=p)
+        for v, a, p in limits
+    )
+    world = head_on_world(floor, groups, seed, gaps)
+    summary = world.run().summary
+    contacts, _ = contacts_of(world)
+    assert contacts == []
+    assert summary["distance_m"] >= 1.0
+
+
+def test_a_neighbour_strays_and_brakes_by_its_own_limits():
+    # A slow, gentle observer and a fast, sharp neighbour: the neighbour's unseen step is its
+    # own (a_max 2 over its 0.5 s period: up to 0.71 m), not the observer's (2.7 cm).
+    own = RobotSpec(v_max=0.6, a_max=0.3, radius=0.4, period=0.25)
+    told = Neighbour("r2", 0.0, 0.0, 1.2, 0.0, 0.4, 0, (), v_max=1.6, a_max=2.0, period=0.5)
+    unknown = Neighbour("r2", 0.0, 0.0, 1.2, 0.0, 0.4, 0, ())
+    assert neighbour_stray(unknown, own) == unseen_step(0.25, 0.3, 0.6)
+    assert neighbour_stray(told, own) == unseen_step(0.5, 2.0, 1.6) == math.sqrt(2.0) * 0.5
+    # Over the longer period of the two: a fast-ticking neighbour seen by a slow observer.
+    quick = Neighbour("r2", 0.0, 0.0, 0.0, 0.0, 0.4, 0, (), a_max=0.3, period=0.1)
+    slow = RobotSpec(v_max=0.6, a_max=0.3, radius=0.4, period=1.0)
+    assert neighbour_stray(quick, slow) == unseen_step(1.0, 0.3, 0.6)
+    # The forecast keeps that much, and the neighbour's braking (no plan) ends where its own
+    # bound stops it: 1.2 m/s held over its 0.5 s step, then braking at 2 m/s^2 (1.2 -> 0.2 ->
+    # 0): 0.6 + 0.6 + 0.1 = 1.3 m, where the observer's own bound (0.3) would say over 2 m.
+    f = Forecast.of(told, 0.0, own.period, own.a_max, own.v_max)
+    assert f.slack == neighbour_stray(told, own)
+    assert f.reach[2] == pytest.approx(1.3)
+    assert Forecast.of(unknown, 0.0, own.period, own.a_max, own.v_max).reach[2] > 2.0
+
+
+def test_the_engine_tells_each_neighbour_its_limits():
+    spec = FloorSpec(
+        source="<hall>",
+        name="hall",
+        boundary=box(0, 0, 20, 10),
+        default_v_max=(1.0, 1.0),
+        clearance=RADIUS,
+        obstacles=(),
+        zones=(),
+        stations=(Station("a", 3.0, 5.0, kind="depot"), Station("b", 6.0, 5.0)),
+    )
+    groups = (
+        RobotsConfig(count=1, start=("a",), radius=RADIUS, v_max=0.6, a_max=0.3, period_s=0.25),
+        RobotsConfig(count=1, start=("b",), radius=RADIUS, v_max=1.6, a_max=2.0, period_s=0.5),
+    )
+    scenario = Scenario(
+        name="mixed",
+        source="<mixed limits>",
+        map=Path("<hall>"),
+        duration_s=10.0,
+        seed=1,
+        robots=groups,
+        controller=PluginChoice("follower"),
+        dispatcher=PluginChoice("greedy"),
+        sensing_radius_m=max(sensing_needed(g, h) for g in groups for h in groups),
+    )
+    world = World(scenario, compile_floor(spec))
+    seen = {o.robot: o.neighbours for o in world.sensing.observe(list(world.robots.values()), 0.0)}
+    (slow_sees,), (fast_sees,) = (seen[r] for r in sorted(seen))
+    assert (slow_sees.v_max, slow_sees.a_max, slow_sees.period) == (1.6, 2.0, 0.5)
+    assert (fast_sees.v_max, fast_sees.a_max, fast_sees.period) == (0.6, 0.3, 0.25)

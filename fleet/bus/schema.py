@@ -1,28 +1,29 @@
-"""The bus's wire schema: what the engine and the robot agents say to each other, version 4.
+"""The bus's wire schema: what the engine and the robot agents say to each other, version 5.
 
 Every message is one ZeroMQ frame holding one compact UTF-8 JSON object, the *envelope*::
 
-    {"version": 4, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
+    {"version": 5, "kind": "observe", "sender": "exchange", "tick": 42, "body": {...}}
 
 `kind` says what the body holds (see `MessageKind`); `tick` is the engine's control tick the
-message belongs to (0 for HELLO). Observations and commands travel as JSON objects whose fields
-are exactly those of `fleet.plugins.Observation` and `fleet.plugins.Command`; small fixed
-tuples travel as arrays: a goal is ``[x, y]``, a neighbour
-``[robot, x, y, vx, vy, radius, priority, plan]``, a plan sample ``[t, x, y]``, a speed-cap
-piece ``[start_s, end_s, cap]``, a solve report ``[outcome, solver_s, step_s]``, an
-announcement ``[job, x, y, print_s, released_s, due_s]``, a bid ``[job, robot, estimate_s]``
-and a handback ``[robot, job, reason]``. Every field is always present (``null`` where the
-dataclass holds None), so a message either matches the schema exactly or is rejected. Numbers
-are finite; ids (robots, jobs, senders) are non-empty strings; ticks, ``queued``, cap values,
-``print_s``, bid estimates and solve times are >= 0, a neighbour's radius > 0, speed-cap
-pieces sorted and non-overlapping, and a HELLO's (WELCOME's) robots unique. Sizes are bounded:
-a frame by `MAX_MESSAGE_BYTES` (or the ``max_bytes`` given to `decode`), arrays and strings by
-the other ``MAX_*`` constants below.
+message belongs to (0 for HELLO). Observations and commands travel as JSON objects whose fields are
+exactly those of `fleet.plugins.Observation` and `fleet.plugins.Command`; small fixed tuples travel
+as arrays: a goal is ``[x, y]``, a neighbour ``[robot, x, y, vx, vy, radius, priority, plan, v_max,
+a_max, period]``, a plan sample ``[t, x, y]``, a speed-cap piece ``[start_s, end_s, cap]``, a solve
+report ``[outcome, solver_s, step_s]``, an announcement ``[job, x, y, print_s, released_s,
+due_s]``, a bid ``[job, robot, estimate_s]`` and a handback ``[robot, job, reason]``. Every field
+is always present (``null`` where the dataclass holds None), so a message either matches the schema
+exactly or is rejected. Numbers are finite; ids (robots, jobs, senders) are non-empty strings;
+ticks, ``queued``, cap values, ``print_s``, bid estimates and solve times are >= 0, a neighbour's
+radius and its limits (``null`` where not known) > 0, speed-cap pieces sorted and non-overlapping,
+and a HELLO's (WELCOME's) robots unique. Sizes are bounded: a frame by `MAX_MESSAGE_BYTES` (or the
+``max_bytes`` given to `decode`), arrays and strings by the other ``MAX_*`` constants below.
 
 History: version 2 added ``speed_caps`` and ``solve``, version 3 ``print_end_s``; version 4
-(contract net and liveness) added the observation's ``priority``, ``blockers`` and ``queued``,
-the neighbour's radius, priority and plan, OBSERVE's ``announcements``, ACT's ``bids`` and
-``handbacks``, HELLO's ``scenario`` and the HEARTBEAT kind.
+(contract net and liveness) added the observation's ``priority``, ``blockers`` and ``queued``, the
+neighbour's radius, priority and plan, OBSERVE's ``announcements``, ACT's ``bids`` and
+``handbacks``, HELLO's ``scenario`` and the HEARTBEAT kind; version 5 the neighbour's ``v_max``,
+``a_max`` and ``period`` (a fleet may mix robots, and how far a neighbour can stray unseen depends
+on its own limits: `fleet.plugins.robot.neighbour_stray`).
 
 The schema is written once, as msgspec types (the ``_Wire`` structs and the array aliases
 below), and msgspec checks it in C: `decode` parses and validates a frame in one pass and
@@ -92,7 +93,7 @@ __all__ = [
     "handback_to_wire",
 ]
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 """The version this build writes and the only one it reads."""
 
 # Bounds on what one message may hold, so that no message costs more than a few tens of
@@ -205,12 +206,24 @@ _CapPiece = Annotated[
     Meta(description="[start_s, end_s, cap]", extra={"at": ""}),
 ]
 # A neighbour's numbers are reported at the neighbour, its priority and plan by name (the
-# radius > 0 rule is checked in _observation, so that its error names the radius).
+# radius > 0 and limits > 0 rules are checked in _observation, so that the error names them).
 _Neighbour = Annotated[
-    tuple[_RobotId, _Finite, _Finite, _Finite, _Finite, _Finite, int, _Plan],
+    tuple[
+        _RobotId,
+        _Finite,
+        _Finite,
+        _Finite,
+        _Finite,
+        _Finite,
+        int,
+        _Plan,
+        _Finite | None,
+        _Finite | None,
+        _Finite | None,
+    ],
     Meta(
-        description="[robot, x, y, vx, vy, radius, priority, plan]",
-        extra={"at": ("", "", "", "", "", "", ".priority", ".plan")},
+        description="[robot, x, y, vx, vy, radius, priority, plan, v_max, a_max, period]",
+        extra={"at": ("", "", "", "", "", "", ".priority", ".plan", ".v_max", ".a_max", ".period")},
     ),
 ]
 _Announcement = Annotated[
@@ -303,7 +316,7 @@ class _ByeBody(_Wire):
 
 
 class _Envelope(_Wire, tag_field="kind"):
-    version: Literal[4]  # SCHEMA_VERSION
+    version: Literal[5]  # SCHEMA_VERSION
     sender: _Name
     tick: _Count
 
@@ -546,6 +559,9 @@ def observation_to_wire(o: Observation) -> dict[str, Any]:
                 float(n.radius),
                 int(n.priority),
                 n.plan,
+                None if n.v_max is None else float(n.v_max),
+                None if n.a_max is None else float(n.a_max),
+                None if n.period is None else float(n.period),
             ]
             for n in o.neighbours
         ],
@@ -812,6 +828,12 @@ def _observation(o: _Observation, m: _Envelope | str, index: int = 0) -> Observa
     for j, n in enumerate(neighbours):
         if not n.radius > 0.0:
             raise _fail(f"{_where(m, index)}.neighbours[{j}].radius", n.radius, "must be > 0")
+        for name in ("v_max", "a_max", "period"):
+            value = getattr(n, name)
+            if value is not None and not value > 0.0:
+                raise _fail(
+                    f"{_where(m, index)}.neighbours[{j}].{name}", value, "must be > 0 or null"
+                )
     caps = o.speed_caps
     previous = -_MAX
     for k, (start, end, cap) in enumerate(caps):

@@ -82,11 +82,14 @@ class Aside:
     job: str | None = None
 
 
-def kept_gap(robot: RobotState) -> float:
-    """The gap (m) `robot` keeps from a neighbour on top of the two radii: the follower's
-    margin and the step a neighbour may take unseen in one period (`unseen_step`)."""
+def kept_gap(robot: RobotState, other: RobotState | None = None) -> float:
+    """The gap (m) `robot` keeps from neighbour `other` (None: one like itself) on top of the
+    two radii: the follower's margin and the step the neighbour may take unseen between two of
+    `robot`'s looks (`fleet.plugins.robot.neighbour_stray`: by its own limits, over the longer
+    of the two periods)."""
     spec = robot.spec
-    return FOLLOWER_MARGIN_M + unseen_step(spec.period, spec.a_max, spec.v_max)
+    them = spec if other is None else other.spec
+    return FOLLOWER_MARGIN_M + unseen_step(max(spec.period, them.period), them.a_max, them.v_max)
 
 
 class MakeWay:
@@ -336,7 +339,8 @@ class MakeWay:
         the way there may pass close to `stuck` (which backs off first)."""
         free = self.floor.free_space
         # Off the route by more than the stuck robot keeps from a neighbour, or it could not pass.
-        away = robot.spec.radius + stuck.spec.radius + max(AWAY_M, kept_gap(stuck) + OTHERS_M)
+        kept = kept_gap(stuck, robot)
+        away = robot.spec.radius + stuck.spec.radius + max(AWAY_M, kept + OTHERS_M)
         others = [
             (o.x, o.y, robot.spec.radius + o.spec.radius + OTHERS_M)
             for o in self.robots.values()
@@ -398,13 +402,13 @@ class MakeWay:
         # The same holds for every other robot on the way (a robot packed in among others at a
         # depot was sent to a spot past one of them, 0.54 m from it, and never moved).
         spec = robot.spec
-        gap = max(OTHERS_M, kept_gap(robot))
-        # Robots further off the way's bounding box on some axis than the gap (and a hair:
-        # `_SURE_M`) cannot be within it: they are passed over without measuring.
         x0, y0, x1, y1 = leg.bounds
         for o in self.robots.values():
             if o is robot or (past and o is stuck):
                 continue
+            gap = max(OTHERS_M, kept_gap(robot, o))
+            # Robots further off the way's bounding box on some axis than the gap (and a hair:
+            # `_SURE_M`) cannot be within it: they are passed over without measuring.
             far = spec.radius + o.spec.radius + gap + _SURE_M
             if o.x < x0 - far or o.x > x1 + far or o.y < y0 - far or o.y > y1 + far:
                 continue

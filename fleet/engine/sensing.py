@@ -348,8 +348,19 @@ class Sensing:
                 if nb is None:
                     o = everyone[j]
                     plan = self._future_plan(o, t)
+                    spec = o.spec
                     nb = seen[j] = Neighbour(
-                        o.id, o.x, o.y, o.vx, o.vy, o.spec.radius, priority[o.id], plan
+                        o.id,
+                        o.x,
+                        o.y,
+                        o.vx,
+                        o.vy,
+                        spec.radius,
+                        priority[o.id],
+                        plan,
+                        spec.v_max,
+                        spec.a_max,
+                        spec.period,
                     )
                 near.append(nb)
             out[r.id] = tuple(near)

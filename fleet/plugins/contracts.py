@@ -145,7 +145,9 @@ class Neighbour:
     `radius` is its footprint radius (m). `priority` is its current priority (the engine's; the
     higher one goes first where two robots' plans conflict). `plan` is the part of its latest
     plan (`Command.plan`) from the observation's time on, ``(t, x, y)`` samples with absolute
-    times; empty when it has sent none (assume it may stay where it is).
+    times; empty when it has sent none (assume it may stay where it is). `v_max`, `a_max` and
+    `period` are its own limits and control period (a fleet may mix robots), None where not
+    known; `limits` fills those in from the observer's own.
     """
 
     robot: str
@@ -156,6 +158,19 @@ class Neighbour:
     radius: float = 0.4
     priority: int = 0
     plan: tuple[tuple[float, float, float], ...] = ()
+    v_max: float | None = None
+    a_max: float | None = None
+    period: float | None = None
+
+    def limits(self, own: RobotSpec) -> RobotSpec:
+        """Its limits and period as a `RobotSpec`, each one not known taken from `own` (the
+        observer's: in a fleet of one kind they are the same)."""
+        return RobotSpec(
+            own.v_max if self.v_max is None else self.v_max,
+            own.a_max if self.a_max is None else self.a_max,
+            self.radius,
+            own.period if self.period is None else self.period,
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,7 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DoubleIntegrator", "brake_input", "clip", "unseen_step"]
+from fleet.plugins.contracts import Neighbour, RobotSpec
+
+__all__ = ["DoubleIntegrator", "brake_input", "clip", "neighbour_stray", "unseen_step"]
 
 
 def clip(value: float, bound: float) -> float:
@@ -87,3 +89,14 @@ def unseen_step(dt: float, a_max: float, v_max: float = math.inf) -> float:
     floor, and jobs waited to the end of the run (fuzz s21-0388, s21-0691). The follower keeps
     it from its neighbours, and the engine's making way allows for it (`fleet.engine.makeway`)."""
     return math.sqrt(2.0) * min(a_max * dt, v_max) * dt
+
+
+def neighbour_stray(n: Neighbour, own: RobotSpec) -> float:
+    """How far (m) neighbour `n` may stray unseen, between two looks of a robot with spec
+    `own`, from where its plan or braking puts it: `unseen_step` with the neighbour's own
+    limits (`Neighbour.limits`) over the longer of the two periods. A neighbour of a shorter
+    period steps several times between two looks; its velocity still changes by at most
+    ``a_max`` per second, so its position by at most ``a_max * T**2`` over a window ``T``. In a
+    fleet of one kind this is ``unseen_step(own.period, own.a_max, own.v_max)``."""
+    theirs = n.limits(own)
+    return unseen_step(max(own.period, theirs.period), theirs.a_max, theirs.v_max)

@@ -241,8 +241,10 @@ class PathFollower(Controller):
         self._guard = Guard(
             context.spec, self._planners.floor, self.margin_m, self.yield_s, hold_steps
         )
-        #: Tracking commands held back because braking after them would leave the free space.
+        #: Tracking commands held back because braking after them would leave the free space,
+        #: or enter a region faster than its limit.
         self.brakes_for_walls = 0
+        self.brakes_for_zones = 0
         self._clear()
 
     def _clear(self) -> None:
@@ -341,6 +343,9 @@ class PathFollower(Controller):
             return self._hold(obs, track)
         if not self._guard.stops_inside(obs, stop):
             self.brakes_for_walls += 1
+            return self._hold(obs, track)
+        if not self._guard.stops_within_limits(obs, stop):
+            self.brakes_for_zones += 1
             return self._hold(obs, track)
         if (
             obs.neighbours

@@ -13,10 +13,13 @@ import math
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numpy as np
+import shapely
 from shapely.geometry import LineString
 
+from fleet.floor import BOUNDARY_BAND
 from fleet.plugins import Command, Observation, RobotSpec
-from fleet.plugins.robot import clip
+from fleet.plugins.robot import clip, neighbour_stray
 from fleet_plugins.follower.track import Track
 from fleet_plugins.follower.yielding import (
     Detour,
@@ -33,6 +36,9 @@ if TYPE_CHECKING:
     from fleet.paths import PathPlanner
 
 __all__ = ["Guard", "MOVED_M"]
+
+#: Speed (m/s) over a limit below which rounding is forgiven (the safety checker's).
+_SPEED_TOL = 1e-6
 
 #: A blocker that moved further than this (m) since a detour round it found no way is looked
 #: at again where it stands now.
@@ -70,6 +76,9 @@ class Guard:
         self._blockers: list[tuple[str, float, float, float]] = []
         #: Whether the detour is one kept with no blockers named (`route`).
         self._kept = False
+        #: Each region's per-axis limit, and the floor's slowest per axis (`stops_within_limits`).
+        self._limits = np.array([r.v_max for r in floor.regions], dtype=float).reshape(-1, 2)
+        self._slowest = self._limits.min(axis=0, initial=np.inf)
 
     # -- rules 1 and 2 ----------------------------------------------------------------------------
     def braking_after(self, obs: Observation, cmd: Command) -> list[tuple[float, float, float]]:
@@ -167,6 +176,23 @@ class Guard:
             return True
         return bool(self.floor.free_space_tolerant.covers(LineString(points)))
 
+    def stops_within_limits(self, obs: Observation, stop: list[tuple[float, float, float]]) -> bool:
+        """Whether braking along `stop` (`braking_after` a command) keeps to the speed limit of
+        every region it enters: per axis, no step of it faster than the limit of a region whose
+        core it reaches (`Floor.region_cores`, as the safety checker judges). Checked with
+        `stops_inside`, for the same reason: a robot a neighbour held on a path that skirted a
+        slow zone at a bend braked straight on, into the zone at 0.61 m/s where 0.33 was the
+        limit (fuzz s31-0360). Steps slower than the floor's slowest limit are not measured."""
+        pts = np.array([(obs.x, obs.y)] + [(x, y) for _, x, y in stop])
+        speed = np.abs(np.diff(pts, axis=0)) / self.spec.period
+        fast = np.flatnonzero(np.any(speed > self._slowest + _SPEED_TOL, axis=1))
+        if not len(fast):
+            return True
+        lines = shapely.linestrings(np.stack([pts[:-1][fast], pts[1:][fast]], axis=1))
+        line_i, reg_i = self.floor.tree.query(lines, predicate="intersects")
+        hit = shapely.intersects(lines[line_i], self.floor.region_cores(BOUNDARY_BAND)[reg_i])
+        return not np.any(speed[fast][line_i[hit]] > self._limits[reg_i[hit]] + _SPEED_TOL)
+
     # -- rule 3 -----------------------------------------------------------------------------------
     def route(
         self, obs: Observation, keep: bool = False, face_off: tuple[str, ...] = ()
@@ -213,7 +239,7 @@ class Guard:
         self, obs: Observation, track: Track, cap: float, goal: tuple[float, float]
     ) -> tuple[str, ...]:
         """The lower-priority neighbours at rest, with no plan to move, within the gap
-        (both radii, the margin and `unseen_step`) of the robot's way over the window it
+        (both radii, the margin and `neighbour_stray`) of the robot's way over the window it
         yields over (`may_go`), but not of its goal (there it waits its turn)."""
         spec = self.spec
         dt, a_max = spec.period, spec.a_max
@@ -224,7 +250,7 @@ class Guard:
                 continue
             if any(math.hypot(x - n.x, y - n.y) > MOVED_M for _, x, y in n.plan):
                 continue  # about to leave
-            gap = spec.radius + n.radius + self.margin_m + unseen_step(dt, a_max, spec.v_max)
+            gap = spec.radius + n.radius + self.margin_m + neighbour_stray(n, spec)
             if math.hypot(goal[0] - n.x, goal[1] - n.y) <= gap:
                 continue
             if any(math.hypot(x - n.x, y - n.y) <= gap for _, x, y in own):
@@ -290,7 +316,11 @@ class Guard:
         spec = self.spec
         # Past the gap by the drift a parked robot is granted (`Forecast`), so that the
         # stopping check lets the robot drive the detour past a blocker that sends no plan.
-        drift = unseen_step(spec.period, spec.a_max, spec.v_max)
+        names = {b[0] for b in self._blockers}
+        drift = max(
+            [neighbour_stray(n, spec) for n in obs.neighbours if n.robot in names],
+            default=unseen_step(spec.period, spec.a_max, spec.v_max),
+        )
         return Detour.build(
             self.floor,
             self._blockers,

@@ -28,8 +28,8 @@ from shapely.geometry import Polygon
 from fleet.floor import Floor, convex_pieces
 from fleet.floor.build import GRID
 from fleet.paths import PathPlanner
-from fleet.plugins import Neighbour
-from fleet.plugins.robot import brake_input, unseen_step
+from fleet.plugins import Neighbour, RobotSpec
+from fleet.plugins.robot import brake_input, neighbour_stray, unseen_step
 
 __all__ = [
     "DEFAULT_MARGIN_M",
@@ -113,10 +113,14 @@ class Forecast:
     def of(
         cls, n: Neighbour, t: float, dt: float, a_max: float, v_max: float = math.inf
     ) -> Forecast:
-        """The forecast of neighbour `n` seen at time `t`, for robots of period `dt`,
-        acceleration bound `a_max` and speed bound `v_max` (the neighbour's own are unknown;
-        the fleet's usually match)."""
-        slack = unseen_step(dt, a_max, v_max)
+        """The forecast of neighbour `n` seen at time `t` by a robot of period `dt`,
+        acceleration bound `a_max` and speed bound `v_max`. The neighbour brakes, and strays
+        unseen (`neighbour_stray`), by its own limits where the observation gives them
+        (`Neighbour.limits`; a fleet may mix robots), by the observer's where not."""
+        own = RobotSpec(v_max, a_max, n.radius, dt)
+        slack = neighbour_stray(n, own)
+        theirs = n.limits(own)
+        dt, a_max = theirs.period, theirs.a_max
         if n.plan:
             # Its plan from where it is now (a plan that has ended holds it where it is). The
             # command it sends in this same tick (setting off from rest, say) is not in that

@@ -78,7 +78,7 @@ def robots_to_avoid(
             # (a failed solve) or to re-plan: keep clear of the box round both, whichever robot
             # yields (against its plan alone, a robot tailed the other 0.7 m behind and met it
             # when that one braked; tests/test_mpc_contact.py).
-            stop = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))
+            stop = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, n.limits(spec).a_max, N))
             stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
             ob = Obstacle.between(n.robot, centres, stop, half, margin)
         if not reaches(ob, p_lo, p_hi):

@@ -54,7 +54,8 @@ def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float
     hi = np.maximum(p[:-1], p[1:])
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, N)
-        stop = np.asarray(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, spec.a_max, N))[:, 1:]
+        a_max = n.limits(spec).a_max  # it brakes by its own bound (a fleet may mix robots)
+        stop = np.asarray(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, a_max, N))[:, 1:]
         stop = np.vstack([stop, np.repeat(stop[-1:], N + 1 - len(stop), axis=0)])
         ends = np.stack([centres[:-1], centres[1:], stop[:-1], stop[1:]])  # (4, N, 2)
         half = spec.radius + float(n.radius) + margin
