@@ -20,7 +20,7 @@ from fleet_plugins.mpc import MPCController
 from fleet_plugins.mpc.reuse import RepeatWatch
 from tests.test_fleet import mpc_fleet_run, mpc_fleet_scenario
 from tests.test_mpc import L_HALL, SPEC_1S, Loop, l_hall
-from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away
+from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away, parked
 
 
 def unsolved_runs(solved: list[bool]) -> list[int]:
@@ -180,3 +180,17 @@ def test_a_robot_waiting_at_rest_does_not_count_as_a_cycle() -> None:
     assert not watch.solved_from(moving, other)
     watch.waited(moving, -0.8, 0.0, 0.25)  # (brakes to rest within the tick)
     assert watch.solved_from(moving, other)
+
+
+def test_a_robot_waiting_at_the_margin_of_a_parked_one_keeps_its_plan() -> None:
+    # Driving up to a robot parked on its goal, the robot stops at the soft margin (r_i + r_j
+    # + 0.1 m, to rounding: 0.8999999999999986 m) and waits there. Its plan at rest keeps that
+    # distance, so it is followed between solves (every tick was solved when the rounding
+    # counted as entering the margin), and it never comes closer.
+    run = Run(MPCController(horizon=12, reuse_ticks=4), parked)
+    for _ in range(60):
+        run.step((10.0, 5.0))
+    waiting = run.commands[30:]
+    assert np.max(np.abs(run.v)) <= 1e-9 and abs(run.p[0] - 9.1) < 1e-6  # at the margin
+    assert sum(c.solve is not None for c in waiting) <= len(waiting) // 4
+    assert min(run.gaps) >= CONTACT + 0.1 - 1e-6

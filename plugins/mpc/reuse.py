@@ -45,9 +45,10 @@ def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float
 
     Sound and cheap, step by step: over each step k -> k+1 the plan's segment lies in the box of
     its two ends, and the neighbour (on its plan or braking) in the box of its four predicted
-    points at k and k+1. Those two boxes must lie more than ``r_i + r_j + margin`` apart along
-    one axis, so the two centres are that far apart along it at every instant of the step: the
-    separation rows of a solve hold with their margin, whichever robot would have yielded.
+    points at k and k+1. Those two boxes must lie ``r_i + r_j + margin`` apart along one axis
+    (to `PLAN_MATCH`: a robot a solve stopped at the margin waits there), so the two centres are
+    that far apart along it at every instant of the step: the separation rows of a solve hold
+    with their margin, whichever robot would have yielded.
     """
     dt, N = spec.period, len(p) - 1
     lo = np.minimum(p[:-1], p[1:])  # (N, 2): the plan's box over each step
@@ -58,7 +59,8 @@ def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float
         stop = np.asarray(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, a_max, N))[:, 1:]
         stop = np.vstack([stop, np.repeat(stop[-1:], N + 1 - len(stop), axis=0)])
         ends = np.stack([centres[:-1], centres[1:], stop[:-1], stop[1:]])  # (4, N, 2)
-        half = spec.radius + float(n.radius) + margin
+        # (A plan kept to the margin by a solve sits on it to rounding: 0.8999999999999986 m.)
+        half = spec.radius + float(n.radius) + margin - PLAN_MATCH
         apart = (ends.min(axis=0) >= hi + half) | (ends.max(axis=0) <= lo - half)
         if not apart.any(axis=1).all():
             return False
