@@ -236,7 +236,7 @@ class Sensing:
             log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, named)
         if movable:
             self.make_way.ask(r, goal, movable, t)
-        elif r.job is not None and r.aside is None and gap > tol:
+        elif (r.job is not None or goal == r.home) and r.aside is None and gap > tol:
             self._give_way(r, [o for o in near if o.id in blockers], t, after, priority)
         # Robots sent aside for this one leave its route: for a deadlock period it waits for
         # them on its own route rather than routing round them. Named as blockers, a follower
@@ -259,15 +259,17 @@ class Sensing:
         after: float,
         priority: Mapping[str, int],
     ) -> None:
-        """`r`, stuck with a job, steps aside for the first of its `blockers` that is stuck
-        too with a job and goes first (higher priority): that one would send `r` aside once
-        it is reported, but `r` was reported first, found no way round it (a corridor, a
-        door) and handed its job back in the same tick (fuzz s21-0677: two robots face to
-        face in a corridor, both jobs handed back)."""
+        """`r`, stuck with a job or on its way home, steps aside for the first of its
+        `blockers` that is stuck too, with a job or on its way home, and goes first (higher
+        priority): that one would send `r` aside once it is reported, but `r` was reported
+        first, found no way round it (a corridor, a door) and handed its job back in the same
+        tick (fuzz s21-0677: two robots face to face in a corridor, both jobs handed back).
+        Two idle robots going home face to face never asked each other (only robots near home
+        ask) and stood for good (fuzz s31-0463: three robots, the last 110 s)."""
         for o in blockers:
             if (
                 o.in_service
-                and o.job is not None
+                and (o.job is not None or o.watched_goal == o.home)
                 and priority[o.id] > priority[r.id]
                 and o.watched_goal is not None
                 and _no_progress(o, t, after / 2)
