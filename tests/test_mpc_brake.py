@@ -138,3 +138,16 @@ def test_a_robot_held_in_a_door_solves_rather_than_brake_out_of_the_free_space(t
     assert outcome.status == "ok", outcome.findings
     assert outcome.engine["obstacle"] == 0
     assert outcome.engine["fallbacks"] <= 2
+
+
+@pytest.mark.parametrize("neighbours", [(), (Neighbour("r2", 30.0, 45.0, 0.0, 0.0),)])
+def test_a_speed_under_the_rest_threshold_is_cancelled_not_left_to_drift(neighbours):
+    # Fuzz s42-0010: -8.4e-10 m/s, under REST_SPEED, was left alone by every brake and
+    # carried the robot across a region's edge over a minute.
+    obs = Observation("r1", 0, 0.0, 20.0, 45.0, -8.4e-10, 3e-10, neighbours=neighbours)
+    cmd = brake(obs, SPEC, HORIZON, ControlStatus.FALLBACK, FLOOR)
+    robot = DoubleIntegrator(SPEC.period, SPEC.a_max)
+    _, _, vx, vy = robot.step(obs.x, obs.y, obs.vx, obs.vy, cmd.ax, cmd.ay)
+    assert (vx, vy) == (0.0, 0.0)
+    assert bool(cmd.plan) == bool(neighbours)
+    assert all((x, y) == (obs.x, obs.y) for _, x, y in cmd.plan)

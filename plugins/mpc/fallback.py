@@ -116,10 +116,15 @@ def brake(
     none, the robot brakes along its line of travel all the same.
     """
     if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
+        # A speed left from the solver's tolerances is cancelled within the step (as `park`
+        # does): left alone it carried a robot across a region's edge over a minute (fuzz
+        # s42-0010, -8.4e-10 m/s).
+        dt = spec.period
+        ax, ay = -obs.vx / dt + 0.0, -obs.vy / dt + 0.0
         if not obs.neighbours:
-            return Command(0.0, 0.0, status)
-        end = obs.t + horizon * spec.period
-        return Command(0.0, 0.0, status, ((obs.t, obs.x, obs.y), (end, obs.x, obs.y)))
+            return Command(ax, ay, status)
+        end = obs.t + horizon * dt
+        return Command(ax, ay, status, ((obs.t, obs.x, obs.y), (end, obs.x, obs.y)))
     found = free_brake(obs, spec, floor)
     if found is None:  # none stays in: along the line of travel all the same
         dt, a_max = spec.period, spec.a_max
