@@ -203,3 +203,21 @@ def test_robots_face_to_face_in_the_open_pass_without_waiting_for_the_watch() ->
     assert s["deadlocks"] == 0
     delivered = {e.job: e.t for e in world.recorder.events if e.event == "delivered"}
     assert max(delivered.values()) < 55.0
+
+
+def test_robots_setting_off_in_a_row_drive_on_without_creeping() -> None:
+    # Four robots start round one depot, 1 m apart, and all get a job at the far end of an
+    # open hall at once (period 0.1 s, a_max 0.41 m/s^2, as in fuzz s21-0998). Each one ahead
+    # braked because the plan of the one behind ran through the spot where it would stop, the
+    # one behind could not come closer, and all set off together again at the next tick: three
+    # of them crept 4 m in 200 s (2 cm/s, on the move, so no deadlock was ever reported) and
+    # 1 job of 4 was delivered. A neighbour behind is now no reason to brake or to yield.
+    folder = CASES / "convoy"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 4
+    assert s["violations"]["collision"] == 0
+    delivered = [e.t for e in world.recorder.events if e.event == "delivered"]
+    assert max(delivered) < 90.0
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))
