@@ -273,6 +273,30 @@ class MakeWay:
             looked = self._looked[stuck.id] = (t, tuple(found))
         return [o for rid in looked[1] if (o := self.robots[rid]).job is None and o.in_service]
 
+    def idle_on_route(
+        self, stuck: RobotState, goal: tuple[float, float], reach: float, t: float
+    ) -> list[RobotState]:
+        """Idle robots in service within both radii plus `reach` of `stuck` that stand on its
+        route (within both radii and `AWAY_M`) and were not asked for it less than a deadlock
+        period ago: the route is planned only when there are such robots."""
+        r = stuck.spec.radius + reach
+        close = [
+            o
+            for o in self.robots.values()
+            if o is not stuck
+            and o.job is None
+            and not o.queue
+            and o.in_service
+            and o.aside is None
+            and math.hypot(o.x - stuck.x, o.y - stuck.y) <= r + o.spec.radius
+            and t >= self._asked.get((o.id, stuck.id), -math.inf) + self.retry_s
+        ]
+        if not close:
+            return []
+        route = self._route(stuck, goal)
+        gap = stuck.spec.radius + AWAY_M
+        return [o for o in close if route.distance(Point(o.x, o.y)) <= gap + o.spec.radius]
+
     # -- helpers --------------------------------------------------------------------------------
     def _still_needed(self, robot: RobotState, aside: Aside, t: float) -> bool:
         """Whether `robot` still waits aside: the hold has not run out, it has the job it had,
