@@ -221,3 +221,22 @@ def test_robots_setting_off_in_a_row_drive_on_without_creeping() -> None:
     assert max(delivered) < 90.0
     findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
     assert findings == [], "\n".join(map(str, findings))
+
+
+def test_idle_robots_round_a_depot_by_a_door_are_sent_aside_before_the_watch() -> None:
+    # Five idle robots are parked at home round a depot just past the only door; r01 takes a
+    # job via the far end of the hall and back, through the door and the ring twice. Each time
+    # it waited a deadlock period (30 s) before the idle robots were sent aside, and a few of
+    # them went back home into its way: the job was not delivered in 200 s (4 deadlocks; fuzz
+    # s21-0566, s21-0827). Idle robots on its route are now asked once it made no progress
+    # for 5 s: delivered at 105 s, no deadlock reported.
+    folder = CASES / "depot_by_a_door"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 1
+    assert s["violations"]["collision"] == 0
+    assert s["deadlocks"] == 0
+    asked = [e.t for e in world.recorder.events if e.event == "make_way"]
+    assert asked and min(asked) < 30.0
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))
