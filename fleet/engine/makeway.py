@@ -117,6 +117,8 @@ class MakeWay:
         #: When each stuck robot last looked for idle robots further along its route, and the
         #: ones it found.
         self._looked: dict[str, tuple[float, tuple[str, ...]]] = {}
+        #: What `idle_on_route` last found for each robot, and where everyone stood then.
+        self._idle_seen: dict[str, tuple[tuple, tuple[str, ...]]] = {}
 
     def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
         """Where `robot` heads now: nowhere while broken down, its spot aside while it still
@@ -293,9 +295,18 @@ class MakeWay:
         ]
         if not close:
             return []
-        route = self._route(stuck, goal)
-        gap = stuck.spec.radius + AWAY_M
-        return [o for o in close if route.distance(Point(o.x, o.y)) <= gap + o.spec.radius]
+        # Asked at every tick while the robot stands still: the route is planned again only
+        # when the robot, its goal or the robots close by moved.
+        key = (stuck.x, stuck.y, goal, tuple((o.id, o.x, o.y) for o in close))
+        seen = self._idle_seen.get(stuck.id)
+        if seen is None or seen[0] != key:
+            route = self._route(stuck, goal)
+            gap = stuck.spec.radius + AWAY_M
+            on = tuple(
+                o.id for o in close if route.distance(Point(o.x, o.y)) <= gap + o.spec.radius
+            )
+            seen = self._idle_seen[stuck.id] = (key, on)
+        return [self.robots[rid] for rid in seen[1]]
 
     # -- helpers --------------------------------------------------------------------------------
     def _still_needed(self, robot: RobotState, aside: Aside, t: float) -> bool:
