@@ -240,3 +240,17 @@ def test_idle_robots_round_a_depot_by_a_door_are_sent_aside_before_the_watch() -
     assert asked and min(asked) < 30.0
     findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
     assert findings == [], "\n".join(map(str, findings))
+
+
+def test_a_robot_held_on_a_reference_step_at_rest_sets_off_within_the_zone_limit() -> None:
+    # Fuzz seed 21 (s21-0766, on the branch with a neighbour behind no reason to brake):
+    # period 0.5 s, r04 held at rest at the second sample of a reference whose first step is
+    # at rest; the reference ran on, and at the next tick the tracking law caught up with
+    # its speed a step on: 0.56 m/s per axis in zone z2 (0.46 m/s), found by the oracle and
+    # by the engine. A hold now restarts the reference from any sample where it is at rest.
+    folder = CASES / "zone_after_hold"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["violations"] == {"obstacle": 0, "speed_zone": 0, "print_speed": 0, "collision": 0}
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))

@@ -367,9 +367,14 @@ class PathFollower(Controller):
             self._track = None
             self._waiting = False
             return self._brake(obs, ControlStatus.OK)
-        if track.ref.index(obs.t) == 0:
-            # Not started yet: start the reference again at the next tick.
-            self._track = track.shifted(obs.t + self.context.spec.period)
+        k = track.ref.index(obs.t)
+        if abs(track.samples[2][k]) <= REST_SPEED and abs(track.samples[3][k]) <= REST_SPEED:
+            # Where the reference is at rest too (not started yet, or a first step at rest):
+            # it resumes from this sample at the next tick. Left running, it had the robot
+            # at rest a step behind and the tracking law caught up at once (fuzz s21-0766: 0.56
+            # m/s, the reference's speed a step on, in a zone of 0.46 m/s).
+            dt = self.context.spec.period
+            self._track = track.shifted(obs.t + dt - k * dt)
         self._face_off_check(obs, track)
         # The hold is news on its first tick, then sent about once per PLAN_SAMPLE like a route.
         send = not self._waiting or obs.tick % self._plan_stride == 0
