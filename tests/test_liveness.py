@@ -109,6 +109,12 @@ def judged(case: str, tmp_path: Path) -> list:
         # the last 100 s (0.17 m of motion: neither progress nor at rest, so never reported).
         # A trip whose solves start from a state twice now solves every tick (`RepeatWatch`).
         "mpc_reuse_cycle",
+        # Fuzz seed 31 (s31-0463): period 0.87 s, three robots going home, idle, met face to
+        # face between obstacles; each was reported stuck behind the others, but robots
+        # going home ask others aside only near home, and give way only with a job: none moved
+        # for the last 110 s. A stuck robot going home now steps aside for a higher stuck one
+        # going home or with a job, as a robot with a job does.
+        "homes_face_to_face",
     ],
 )
 def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
@@ -203,3 +209,54 @@ def test_robots_face_to_face_in_the_open_pass_without_waiting_for_the_watch() ->
     assert s["deadlocks"] == 0
     delivered = {e.job: e.t for e in world.recorder.events if e.event == "delivered"}
     assert max(delivered.values()) < 55.0
+
+
+def test_robots_setting_off_in_a_row_drive_on_without_creeping() -> None:
+    # Four robots start round one depot, 1 m apart, and all get a job at the far end of an
+    # open hall at once (period 0.1 s, a_max 0.41 m/s^2, as in fuzz s21-0998). Each one ahead
+    # braked because the plan of the one behind ran through the spot where it would stop, the
+    # one behind could not come closer, and all set off together again at the next tick: three
+    # of them crept 4 m in 200 s (2 cm/s, on the move, so no deadlock was ever reported) and
+    # 1 job of 4 was delivered. A neighbour behind is now no reason to brake or to yield.
+    folder = CASES / "convoy"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 4
+    assert s["violations"]["collision"] == 0
+    delivered = [e.t for e in world.recorder.events if e.event == "delivered"]
+    assert max(delivered) < 90.0
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))
+
+
+def test_idle_robots_round_a_depot_by_a_door_are_sent_aside_before_the_watch() -> None:
+    # Five idle robots are parked at home round a depot just past the only door; r01 takes a
+    # job via the far end of the hall and back, through the door and the ring twice. Each time
+    # it waited a deadlock period (30 s) before the idle robots were sent aside, and a few of
+    # them went back home into its way: the job was not delivered in 200 s (4 deadlocks; fuzz
+    # s21-0566, s21-0827). Idle robots on its route are now asked once it made no progress
+    # for 5 s: delivered at 105 s, no deadlock reported.
+    folder = CASES / "depot_by_a_door"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 1
+    assert s["violations"]["collision"] == 0
+    assert s["deadlocks"] == 0
+    asked = [e.t for e in world.recorder.events if e.event == "make_way"]
+    assert asked and min(asked) < 30.0
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))
+
+
+def test_a_robot_held_on_a_reference_step_at_rest_sets_off_within_the_zone_limit() -> None:
+    # Fuzz seed 21 (s21-0766, on the branch with a neighbour behind no reason to brake):
+    # period 0.5 s, r04 held at rest at the second sample of a reference whose first step is
+    # at rest; the reference ran on, and at the next tick the tracking law caught up with
+    # its speed a step on: 0.56 m/s per axis in zone z2 (0.46 m/s), found by the oracle and
+    # by the engine. A hold now restarts the reference from any sample where it is at rest.
+    folder = CASES / "zone_after_hold"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["violations"] == {"obstacle": 0, "speed_zone": 0, "print_speed": 0, "collision": 0}
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))

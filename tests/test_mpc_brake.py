@@ -6,6 +6,8 @@ a robot where it is, off its goal with nobody about, is a trap (`stays_put`, s41
 from __future__ import annotations
 
 import math
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from fleet.floor import FloorSpec, Obstacle, compile_floor
 from fleet.plugins import ControlStatus, Neighbour, Observation, RobotSpec
 from fleet.plugins.robot import DoubleIntegrator
 from fleet_plugins.mpc.fallback import brake, stays_put
+from tests.scripts import load_script
 
 #: The wall of fuzz floor s41-0109 (a thin band at -36 degrees) and that run's robot.
 WALL = Polygon([(33.6621, 46.4239), (26.883, 51.382), (26.7062, 51.1403), (33.4853, 46.1822)])
@@ -120,3 +123,31 @@ def test_a_plan_that_keeps_a_robot_at_rest_off_its_goal_with_nobody_about_stays_
     assert not stays_put(at(28.0, 49.0, speed_cap=0.0), here, goal, RADIUS)  # held by a cap
     other = Neighbour("r01", 30.0, 49.0, 0.0, 0.0, RADIUS, 1, ())
     assert not stays_put(at(28.0, 49.0, neighbours=(other,)), here, goal, RADIUS)  # waits
+
+
+def test_a_robot_held_in_a_door_solves_rather_than_brake_out_of_the_free_space(tmp_path):
+    # Fuzz case s31-0665 (run cut to 40 s): r01 drove through a door between two walls on a
+    # plan that turned there when r02, which it outranks, came close (`must_hold`: follow the
+    # plan or brake). Its plan no longer kept clear of r02's, so it braked straight on, 0.1 m
+    # out of the free space, and every solve from there was infeasible: 70 fallbacks and 68
+    # obstacle steps by the engine's own checker. A held robot whose every brake leaves the
+    # free space now solves (`neighbours.brake_runs_into` with the floor).
+    case = Path(__file__).resolve().parent / "safety_cases" / "held_in_a_door"
+    shutil.copytree(case, tmp_path / "case")
+    outcome = load_script("fuzz_floors").run_folder(tmp_path / "case")
+    assert outcome.status == "ok", outcome.findings
+    assert outcome.engine["obstacle"] == 0
+    assert outcome.engine["fallbacks"] <= 2
+
+
+@pytest.mark.parametrize("neighbours", [(), (Neighbour("r2", 30.0, 45.0, 0.0, 0.0),)])
+def test_a_speed_under_the_rest_threshold_is_cancelled_not_left_to_drift(neighbours):
+    # Fuzz s42-0010: -8.4e-10 m/s, under REST_SPEED, was left alone by every brake and
+    # carried the robot across a region's edge over a minute.
+    obs = Observation("r1", 0, 0.0, 20.0, 45.0, -8.4e-10, 3e-10, neighbours=neighbours)
+    cmd = brake(obs, SPEC, HORIZON, ControlStatus.FALLBACK, FLOOR)
+    robot = DoubleIntegrator(SPEC.period, SPEC.a_max)
+    _, _, vx, vy = robot.step(obs.x, obs.y, obs.vx, obs.vy, cmd.ax, cmd.ay)
+    assert (vx, vy) == (0.0, 0.0)
+    assert bool(cmd.plan) == bool(neighbours)
+    assert all((x, y) == (obs.x, obs.y) for _, x, y in cmd.plan)

@@ -120,6 +120,8 @@ class MakeWay:
         #: When each stuck robot last looked for idle robots further along its route, and the
         #: ones it found.
         self._looked: dict[str, tuple[float, tuple[str, ...]]] = {}
+        #: What `idle_on_route` last found for each robot, and where everyone stood then.
+        self._idle_seen: dict[str, tuple[tuple, tuple[str, ...]]] = {}
 
     def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
         """Where `robot` heads now: nowhere while broken down, its spot aside while it still
@@ -275,6 +277,39 @@ class MakeWay:
                     found.append(o.id)
             looked = self._looked[stuck.id] = (t, tuple(found))
         return [o for rid in looked[1] if (o := self.robots[rid]).job is None and o.in_service]
+
+    def idle_on_route(
+        self, stuck: RobotState, goal: tuple[float, float], reach: float, t: float
+    ) -> list[RobotState]:
+        """Idle robots in service within both radii plus `reach` of `stuck` that stand on its
+        route (within both radii and `AWAY_M`) and were not asked for it less than a deadlock
+        period ago: the route is planned only when there are such robots."""
+        r = stuck.spec.radius + reach
+        close = [
+            o
+            for o in self.robots.values()
+            if o is not stuck
+            and o.job is None
+            and not o.queue
+            and o.in_service
+            and o.aside is None
+            and math.hypot(o.x - stuck.x, o.y - stuck.y) <= r + o.spec.radius
+            and t >= self._asked.get((o.id, stuck.id), -math.inf) + self.retry_s
+        ]
+        if not close:
+            return []
+        # Asked at every tick while the robot stands still: the route is planned again only
+        # when the robot, its goal or the robots close by moved.
+        key = (stuck.x, stuck.y, goal, tuple((o.id, o.x, o.y) for o in close))
+        seen = self._idle_seen.get(stuck.id)
+        if seen is None or seen[0] != key:
+            route = self._route(stuck, goal)
+            gap = stuck.spec.radius + AWAY_M
+            on = tuple(
+                o.id for o in close if route.distance(Point(o.x, o.y)) <= gap + o.spec.radius
+            )
+            seen = self._idle_seen[stuck.id] = (key, on)
+        return [self.robots[rid] for rid in seen[1]]
 
     # -- helpers --------------------------------------------------------------------------------
     def _still_needed(self, robot: RobotState, aside: Aside, t: float) -> bool:

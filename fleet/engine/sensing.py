@@ -40,6 +40,9 @@ BLOCKING_GAP_M = 1.0
 #: A robot going home that is stuck this close (m) to it asks idle robots to make way (plus
 #: its sqrt(2)*a_max*period**2: at a coarse period start spots are that much further apart).
 HOME_REACH_M = 3.0
+#: A robot with a job that made no progress for this long (s), but less than a deadlock
+#: period, sends the idle robots on its route close by aside (`MakeWay.idle_on_route`).
+IDLE_ASK_S = 5.0
 #: A broken-down robot's priority is its rank plus this many times the fleet's size: above
 #: every robot in service (at most rank + 3 * size).
 BROKEN_RANKS = 4
@@ -164,8 +167,6 @@ class Sensing:
             r.stalled = False
             r.progress_at, r.route_then, r.route_seen = (r.x, r.y), None, (r.x, r.y)
             return
-        if t - r.progress_s < after - 1e-9:
-            return
         # At a coarse period robots stand further off (a step of a_max*dt**2 per axis that a
         # neighbour may take unseen is kept clear of): such a stand-off counts too.
         reach = BLOCKING_GAP_M + math.sqrt(2.0) * r.spec.a_max * r.spec.period**2
@@ -176,6 +177,16 @@ class Sensing:
         # deadlock was ever reported (fuzz s21-0455: period 0.91 s, 125 s to the end).
         spec = r.spec
         set_off = 2.0 * spec.period * min(spec.v_max, spec.a_max * spec.period)
+        if t - r.progress_s < after - 1e-9:
+            # Idle robots never leave by themselves: one on the route of a robot with a job
+            # that has made no progress for `IDLE_ASK_S` is sent aside then, not a whole
+            # deadlock period later (fuzz s21-0566, s21-0827: robots parked at home round a
+            # depot by a door cost 30 s to each robot with a job that came through).
+            if r.job is not None and r.aside is None and t - r.progress_s >= IDLE_ASK_S:
+                idle = self.make_way.idle_on_route(r, goal, reach + set_off, t)
+                if idle:
+                    self.make_way.ask(r, goal, idle, t)
+            return
         # Close by, or standing on its goal however far off this one stopped (the MPC keeps a
         # square round a parked robot, and may stop short of it by more than `reach`).
         near = [
@@ -236,7 +247,7 @@ class Sensing:
             log.info("t = %.2f s: robot %s stuck behind %s", t, r.id, named)
         if movable:
             self.make_way.ask(r, goal, movable, t)
-        elif r.job is not None and r.aside is None and gap > tol:
+        elif (r.job is not None or goal == r.home) and r.aside is None and gap > tol:
             self._give_way(r, [o for o in near if o.id in blockers], t, after, priority)
         # Robots sent aside for this one leave its route: for a deadlock period it waits for
         # them on its own route rather than routing round them. Named as blockers, a follower
@@ -259,15 +270,17 @@ class Sensing:
         after: float,
         priority: Mapping[str, int],
     ) -> None:
-        """`r`, stuck with a job, steps aside for the first of its `blockers` that is stuck
-        too with a job and goes first (higher priority): that one would send `r` aside once
-        it is reported, but `r` was reported first, found no way round it (a corridor, a
-        door) and handed its job back in the same tick (fuzz s21-0677: two robots face to
-        face in a corridor, both jobs handed back)."""
+        """`r`, stuck with a job or on its way home, steps aside for the first of its
+        `blockers` that is stuck too, with a job or on its way home, and goes first (higher
+        priority): that one would send `r` aside once it is reported, but `r` was reported
+        first, found no way round it (a corridor, a door) and handed its job back in the same
+        tick (fuzz s21-0677: two robots face to face in a corridor, both jobs handed back).
+        Two idle robots going home face to face never asked each other (only robots near home
+        ask) and stood for good (fuzz s31-0463: three robots, the last 110 s)."""
         for o in blockers:
             if (
                 o.in_service
-                and o.job is not None
+                and (o.job is not None or o.watched_goal == o.home)
                 and priority[o.id] > priority[r.id]
                 and o.watched_goal is not None
                 and _no_progress(o, t, after / 2)

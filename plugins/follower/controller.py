@@ -96,19 +96,24 @@ class PathFollower(Controller):
     ``R = radius + neighbour.radius + margin_m``.
 
     - **yield** (rule 2): to every *higher*-priority neighbour with a plan that is not a
-      blocker, the robot compares its own path over its braking time from top speed (plus the
-      time to reach that speed) plus `yield_s` with the neighbour's plan (`must_yield`); if the
-      plan comes within R of that path where the neighbour would be first, the robot waits: it
-      brakes to rest and stays at rest, its reference kept ready, until the plan has passed.
+      blocker and not behind it (`yielding.behind`: on the far side of the line through the
+      robot square to its way), the robot compares its own path over its braking time from
+      top speed (plus the time to reach that speed) plus `yield_s` with the neighbour's plan
+      (`must_yield`); if the plan comes within R of that path where the neighbour would be
+      first, the robot waits: it brakes to rest and stays at rest, its reference kept
+      ready, until the plan has passed.
       A higher-priority robot does not wait for lower ones: towards them only the stopping
       check applies, so two robots never wait for each other.
     - **stopping check** (rule 1, every neighbour): the tracking command is sent only if, after
       it, full braking along the line of travel (`braking_path` from the next state), and then
       standing where that stops for `yield_s` more, keeps more than R, plus the step a
       neighbour may take in this same tick (`Forecast.lead`), from every neighbour's
-      forecast (`stops_clear`); otherwise the robot brakes along its line of travel and, at
-      rest, drives the rest of the same path from where it stopped (timed anew from rest by
-      `PathPlanner.reference_along`, not searched again), or stays at rest. A robot at rest
+      forecast (`stops_clear`); a neighbour behind the robot counts by its braking from now
+      only (it follows, and keeps its own braking clear: braking where its plan would pass
+      held robots in a row creeping at 2 cm/s for good, fuzz s21-0998); otherwise the robot
+      brakes along its line of travel and, at rest, drives the rest of the same path from
+      where it stopped (timed anew from rest by `PathPlanner.reference_along`, not searched
+      again), or stays at rest. A robot at rest
       sets off only if the check, made one tick ahead with each neighbour one step on at its
       velocity, would let it drive on (`Guard.keeps_going`): otherwise it crept, setting off,
       braking and timing a new reference every third tick. Robots routing round blockers
@@ -367,9 +372,14 @@ class PathFollower(Controller):
             self._track = None
             self._waiting = False
             return self._brake(obs, ControlStatus.OK)
-        if track.ref.index(obs.t) == 0:
-            # Not started yet: start the reference again at the next tick.
-            self._track = track.shifted(obs.t + self.context.spec.period)
+        k = track.ref.index(obs.t)
+        if abs(track.samples[2][k]) <= REST_SPEED and abs(track.samples[3][k]) <= REST_SPEED:
+            # Where the reference is at rest too (not started yet, or a first step at rest):
+            # it resumes from this sample at the next tick. Left running, it had the robot
+            # at rest a step behind and the tracking law caught up at once (fuzz s21-0766: 0.56
+            # m/s, the reference's speed a step on, in a zone of 0.46 m/s).
+            dt = self.context.spec.period
+            self._track = track.shifted(obs.t + dt - k * dt)
         self._face_off_check(obs, track)
         # The hold is news on its first tick, then sent about once per PLAN_SAMPLE like a route.
         send = not self._waiting or obs.tick % self._plan_stride == 0

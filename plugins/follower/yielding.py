@@ -40,6 +40,7 @@ __all__ = [
     "braking_path",
     "stops_clear",
     "must_yield",
+    "behind",
     "bounds",
     "Detour",
 ]
@@ -239,10 +240,10 @@ def must_yield(
     crossing, or a robot ahead).
 
     Two cases are left to rule 1 (no yield): a neighbour that reaches the robot's path only
-    after the robot has been there comes from behind, and waiting would only put the robot in
-    its way; and a neighbour whose plan stands still over the whole window is parked, and
-    waiting at a distance for it would hide the deadlock from the engine, which looks for
-    robots stuck close together.
+    after the robot has been there, or stands behind it now (`behind`), comes from behind,
+    and waiting would only put the robot in its way; and a neighbour whose plan stands still
+    over the whole window is parked, and waiting at a distance for it would hide the deadlock
+    from the engine, which looks for robots stuck close together.
 
     With `prune` (the default) a plan whose `Forecast.bounds` lie further than `gap` from
     those of `own` (`own_box`, worked out when None) on some axis is no reason to yield,
@@ -254,6 +255,8 @@ def must_yield(
         box = own_box if own_box is not None else bounds(own)
         if _apart(box, higher.bounds()) > gap + _SURE_M:
             return False
+    if behind(own, higher):
+        return False
     theirs = [higher.at(t) for t, _, _ in own]
     x0, y0 = theirs[0]
     if all(abs(x - x0) <= _PARKED and abs(y - y0) <= _PARKED for x, y in theirs):
@@ -263,6 +266,21 @@ def must_yield(
         for qx, qy in theirs[: i + 1]:
             if (ax - qx) ** 2 + (ay - qy) ** 2 < g2:
                 return True
+    return False
+
+
+def behind(own: Sequence[Sample], other: Forecast) -> bool:
+    """Whether neighbour `other` stands behind the robot: on the far side of the line through
+    the start of `own` (the robot's path ahead) square to the way it sets off in (False when
+    `own` stands still). Its plan then follows the robot's path, and in a row of robots as
+    close as the gap (they set off together) every such plan came within the gap: the one
+    ahead waited for the one behind, which could not come closer to it (fuzz s21-0998: both
+    crept at 2 cm/s for 100 s)."""
+    _, x0, y0 = own[0]
+    for _, x, y in own[1:]:
+        ux, uy = x - x0, y - y0
+        if ux * ux + uy * uy > 1e-12:
+            return (other.x - x0) * ux + (other.y - y0) * uy < 0.0
     return False
 
 

@@ -280,8 +280,9 @@ class MPCController(Controller):
         if self._reusable(obs, hold):
             return self._reuse(obs)
         # A close lower robot relies on this one's plan or braking path: no solve, unless the
-        # braking path runs into a robot standing still (it may be held too, and not give way).
-        if hold and not brake_runs_into(obs, spec, self.horizon):
+        # braking path runs into a robot standing still (it may be held too, and not give way)
+        # or out of the free space.
+        if hold and not brake_runs_into(obs, spec, self.horizon, self.context.floor):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
         # A state met again in this trip: a cycle of reused plans; solve every tick from now.

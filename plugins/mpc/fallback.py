@@ -32,6 +32,7 @@ __all__ = [
     "shifted",
     "plan_points",
     "brake",
+    "free_brake",
     "braking_path",
     "stays_put",
     "park",
@@ -115,22 +116,40 @@ def brake(
     none, the robot brakes along its line of travel all the same.
     """
     if abs(obs.vx) <= REST_SPEED and abs(obs.vy) <= REST_SPEED:
+        # A speed left from the solver's tolerances is cancelled within the step (as `park`
+        # does): left alone it carried a robot across a region's edge over a minute (fuzz
+        # s42-0010, -8.4e-10 m/s).
+        dt = spec.period
+        ax, ay = -obs.vx / dt + 0.0, -obs.vy / dt + 0.0
         if not obs.neighbours:
-            return Command(0.0, 0.0, status)
-        end = obs.t + horizon * spec.period
-        return Command(0.0, 0.0, status, ((obs.t, obs.x, obs.y), (end, obs.x, obs.y)))
-    dt, a_max = spec.period, spec.a_max
-    ax, ay = brake_input(obs.vx, obs.vy, dt, a_max)
-    # Checked all the way to rest; published for the horizon, as plans are.
-    path = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, a_max, _TO_REST)
-    if floor is not None and not _stays_free(floor, path):
-        for rates in _RATE_PAIRS:
-            other = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, a_max, _TO_REST, rates)
-            if _stays_free(floor, other):
-                ax, ay = _axis_brake(obs.vx, obs.vy, dt, a_max, rates)
-                path = other
-                break
+            return Command(ax, ay, status)
+        end = obs.t + horizon * dt
+        return Command(ax, ay, status, ((obs.t, obs.x, obs.y), (end, obs.x, obs.y)))
+    found = free_brake(obs, spec, floor)
+    if found is None:  # none stays in: along the line of travel all the same
+        dt, a_max = spec.period, spec.a_max
+        path = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, a_max, _TO_REST)
+        found = (*brake_input(obs.vx, obs.vy, dt, a_max), path)
+    ax, ay, path = found
     return Command(ax, ay, status, path[: horizon + 1] if obs.neighbours else ())
+
+
+def free_brake(
+    obs: Observation, spec: RobotSpec, floor: Floor | None
+) -> tuple[float, float, tuple[tuple[float, float, float], ...]] | None:
+    """The input of this tick and the path to rest of braking along the line of travel, or
+    else of the first pair of `BRAKE_RATES` whose path stays in the `floor`'s free space (all
+    checked to rest); None when none does. Without a floor, braking along the line of travel.
+    """
+    dt, a_max = spec.period, spec.a_max
+    path = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, a_max, _TO_REST)
+    if floor is None or _stays_free(floor, path):
+        return (*brake_input(obs.vx, obs.vy, dt, a_max), path)
+    for rates in _RATE_PAIRS:
+        other = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, a_max, _TO_REST, rates)
+        if _stays_free(floor, other):
+            return (*_axis_brake(obs.vx, obs.vy, dt, a_max, rates), other)
+    return None
 
 
 def stays_put(obs: Observation, p: np.ndarray, goal: tuple[float, float], radius: float) -> bool:

@@ -25,12 +25,16 @@ standing still (`brake_runs_into`): that one may be held too, and never give way
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fleet.plugins import Neighbour, Observation, RobotSpec
-from fleet_plugins.mpc.fallback import REST_SPEED, braking_path
+from fleet_plugins.mpc.fallback import REST_SPEED, braking_path, free_brake
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
+
+if TYPE_CHECKING:
+    from fleet.floor import Floor
 
 __all__ = [
     "robots_to_avoid",
@@ -184,14 +188,22 @@ def must_announce(obs: Observation, spec: RobotSpec, margin: float) -> bool:
     return False
 
 
-def brake_runs_into(obs: Observation, spec: RobotSpec, horizon: int) -> bool:
+def brake_runs_into(
+    obs: Observation, spec: RobotSpec, horizon: int, floor: Floor | None = None
+) -> bool:
     """Whether braking along the line of travel would bring this robot into contact with a
-    neighbour predicted at rest for the horizon, between the samples too. Such a robot may be
-    held itself (`must_hold`: it only brakes, at rest it stays) and never give way, so a held
-    robot solves instead (40 MPC robots on the fleet scenario: a higher robot whose plan curved
-    round a robot held at rest braked straight on into it; tests/test_mpc_contact.py)."""
+    neighbour predicted at rest for the horizon, between the samples too; or, given the
+    `floor`, whether every brake of `fallback.free_brake` would leave its free space. Such a
+    robot may be held itself (`must_hold`: it only brakes, at rest it stays) and never give
+    way, so a held robot solves instead (40 MPC robots on the fleet scenario: a higher robot
+    whose plan curved round a robot held at rest braked straight on into it;
+    tests/test_mpc_contact.py). A robot held in a door on a plan that turned there braked
+    straight on, out of the free space, and never solved a feasible plan again (fuzz
+    s31-0665: 270 fallbacks)."""
     if max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED:
         return False
+    if floor is not None and free_brake(obs, spec, floor) is None:
+        return True
     dt = spec.period
     stop = np.array(braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, spec.a_max, horizon))
     p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])
