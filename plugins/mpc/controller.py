@@ -299,8 +299,7 @@ class MPCController(Controller):
             solution.solver_s += first
         if self.cost == "quadratic" and solution.outcome.usable:
             solution = self._refine(solution, data, separation)
-        step_s = time.perf_counter() - started
-        report = SolveReport(solution.outcome, solution.solver_s, step_s)
+        report = SolveReport(solution.outcome, solution.solver_s, time.perf_counter() - started)
         if solution.outcome.usable:
             assert solution.p is not None and solution.u is not None
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
