@@ -13,13 +13,14 @@ import pytest
 
 from fleet.engine import World
 from fleet.errors import PluginError
-from fleet.plugins import ControlStatus, load_controller
+from fleet.plugins import ControlStatus, Observation, load_controller
 from fleet.printing import CapSchedule
 from fleet.scenario import PluginChoice
 from fleet_plugins.mpc import MPCController
+from fleet_plugins.mpc.reuse import RepeatWatch
 from tests.test_fleet import mpc_fleet_run, mpc_fleet_scenario
 from tests.test_mpc import L_HALL, SPEC_1S, Loop, l_hall
-from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away
+from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away, parked
 
 
 def unsolved_runs(solved: list[bool]) -> list[int]:
@@ -155,3 +156,41 @@ def test_a_fleet_reusing_plans_is_safe_and_the_same_with_0_and_2_workers() -> No
     every_tick = mpc_fleet_run(0).summary  # `base` in this process, shared with test_fleet.py
     assert summaries[0]["solver"]["steps"] < 0.6 * every_tick["solver"]["steps"]
     assert summaries[0]["jobs"]["completed"] >= every_tick["jobs"]["completed"] - 1 >= 0
+
+
+def driving_east(t: float, y: float = 5.0) -> tuple[float, float]:
+    """A robot along y at 1 m/s, at x = 6 at t = 0."""
+    return (6.0 + t, y)
+
+
+def test_a_robot_waiting_at_rest_does_not_count_as_a_cycle() -> None:
+    # A robot standing in a queue, or held a tick by the start gate, solves from the same
+    # state again: not a cycle (`RepeatWatch`), so it keeps reusing its plan between solves;
+    # a robot that moves and comes back to a state a solve started from is one.
+    watch, trip = RepeatWatch(), object()
+    here = Observation("r1", 0, 0.0, 3.0, 4.0, 0.0, 0.0)
+    for _ in range(5):
+        assert not watch.solved_from(here, trip)
+        watch.waited(here, 0.0, 0.0, 0.25)  # kept at rest
+    assert not watch.solved_from(here, trip)
+    watch.waited(here, 0.5, 0.0, 0.25)  # sets off: its state is kept
+    assert watch.solved_from(here, trip)
+    # Moving, the state is always kept.
+    moving, other = Observation("r1", 0, 0.0, 3.0, 4.0, 0.2, 0.0), object()
+    assert not watch.solved_from(moving, other)
+    watch.waited(moving, -0.8, 0.0, 0.25)  # (brakes to rest within the tick)
+    assert watch.solved_from(moving, other)
+
+
+def test_a_robot_waiting_at_the_margin_of_a_parked_one_keeps_its_plan() -> None:
+    # Driving up to a robot parked on its goal, the robot stops at the soft margin (r_i + r_j
+    # + 0.1 m, to rounding: 0.8999999999999986 m) and waits there. Its plan at rest keeps that
+    # distance, so it is followed between solves (every tick was solved when the rounding
+    # counted as entering the margin), and it never comes closer.
+    run = Run(MPCController(horizon=12, reuse_ticks=4), parked)
+    for _ in range(60):
+        run.step((10.0, 5.0))
+    waiting = run.commands[30:]
+    assert np.max(np.abs(run.v)) <= 1e-9 and abs(run.p[0] - 9.1) < 1e-6  # at the margin
+    assert sum(c.solve is not None for c in waiting) <= len(waiting) // 4
+    assert min(run.gaps) >= CONTACT + 0.1 - 1e-6

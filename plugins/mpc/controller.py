@@ -299,14 +299,15 @@ class MPCController(Controller):
             solution.solver_s += first
         if self.cost == "quadratic" and solution.outcome.usable:
             solution = self._refine(solution, data, separation)
-        step_s = time.perf_counter() - started
-        report = SolveReport(solution.outcome, solution.solver_s, step_s)
+        report = SolveReport(solution.outcome, solution.solver_s, time.perf_counter() - started)
         if solution.outcome.usable:
             assert solution.p is not None and solution.u is not None
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
             if stays_put(obs, solution.p, goal, spec.radius):
                 self._model = None  # a trap nothing else ends: a new trip from here
-            return self._go.command(obs, spec, solution.p, solution.u[0], report)  # (`start`)
+            cmd = self._go.command(obs, spec, solution.p, solution.u[0], report)  # (`start`)
+            self._repeats.waited(obs, cmd.ax, cmd.ay, spec.period)  # standing: no cycle
+            return cmd
         return self._fallback(obs, report)
 
     def _reusable(self, obs: Observation, hold: bool = False) -> bool:
