@@ -280,3 +280,18 @@ def test_a_robot_that_gives_way_keeps_its_job() -> None:
     assert not asides & set(backs), backs
     findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
     assert findings == [], "\n".join(map(str, findings))
+
+
+def test_a_robot_that_cannot_reach_its_spot_aside_is_let_by() -> None:
+    # Fuzz seed 61 (s61-0277): r02, idle, stood on the station r03 was to deliver to; sent
+    # aside for r03 at 127 s, its spot lay beyond r03, and the way there passed r03 itself:
+    # it never got nearer, r03 waited for it, and both (and r04, r05 aside round them) stood
+    # still for the last 110 s, a job undone. A robot aside that got no nearer its spot for a
+    # deadlock period now has the robot it made way for back off its way, as one with no spot.
+    folder = CASES / "aside_past_the_stuck_one"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["violations"]["collision"] == 0
+    assert s["engine"].get("backed_off", 0) >= 1
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))
