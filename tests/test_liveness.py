@@ -260,3 +260,38 @@ def test_a_robot_held_on_a_reference_step_at_rest_sets_off_within_the_zone_limit
     assert s["violations"] == {"obstacle": 0, "speed_zone": 0, "print_speed": 0, "collision": 0}
     findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
     assert findings == [], "\n".join(map(str, findings))
+
+
+def test_a_robot_that_gives_way_keeps_its_job() -> None:
+    # Fuzz seed 61 (s61-0063): six robots with jobs crowd round the stations (period 0.5 s).
+    # At 147.5 s r06, stuck, gave way to the higher r01 that was stuck too; in that same tick
+    # its observation still showed its job's goal and its other blockers (r02, r04, r05), the
+    # follower found no way round them and handed the job back, and its print began anew
+    # elsewhere: one job undone at 300 s. A robot sent aside by its own watch now heads for
+    # the spot in that tick, with no blockers named.
+    folder = CASES / "gave_way_handed_back"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["violations"]["collision"] == 0
+    events = world.recorder.events
+    asides = {(e.t, e.robot) for e in events if e.event == "make_way"}
+    assert asides, "nobody was sent aside: the case no longer shows what it is for"
+    backs = [(e.t, e.robot) for e in events if e.event == "handed_back"]
+    assert not asides & set(backs), backs
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))
+
+
+def test_a_robot_that_cannot_reach_its_spot_aside_is_let_by() -> None:
+    # Fuzz seed 61 (s61-0277): r02, idle, stood on the station r03 was to deliver to; sent
+    # aside for r03 at 127 s, its spot lay beyond r03, and the way there passed r03 itself:
+    # it never got nearer, r03 waited for it, and both (and r04, r05 aside round them) stood
+    # still for the last 110 s, a job undone. A robot aside that got no nearer its spot for a
+    # deadlock period now has the robot it made way for back off its way, as one with no spot.
+    folder = CASES / "aside_past_the_stuck_one"
+    world = World(load_scenario(folder / "scen.toml"))
+    s = world.run().summary
+    assert s["violations"]["collision"] == 0
+    assert s["engine"].get("backed_off", 0) >= 1
+    findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
+    assert findings == [], "\n".join(map(str, findings))

@@ -159,9 +159,20 @@ class MakeWay:
         stays (the deadlock stays reported)."""
         route = None
         for robot in movable:
-            if robot.aside is not None and robot.aside.made_way_for == stuck.id:
-                continue
             pair = (robot.id, stuck.id)
+            if robot.aside is not None and robot.aside.made_way_for == stuck.id:
+                # Sent aside, but it got no nearer its spot for a deadlock period: the way
+                # there passes `stuck` itself (fuzz s61-0277: an idle robot standing on the
+                # stuck one's station held its spot aside beyond it for the last 110 s, the
+                # job undone). `stuck` backs off its way, as from a robot with no spot.
+                if self._cannot_reach(robot, t) and t >= self._asked.get(pair, -math.inf) + (
+                    self.retry_s
+                ):
+                    self._asked[pair] = t
+                    if route is None:
+                        route = self._route(stuck, goal)
+                    self._back_off(stuck, robot, goal, route, t)
+                continue
             if t < self._asked.get(pair, -math.inf) + self.retry_s:
                 continue
             self._asked[pair] = t
@@ -219,6 +230,17 @@ class MakeWay:
             spot[0],
             spot[1],
             stuck.id,
+        )
+
+    def _cannot_reach(self, robot: RobotState, t: float) -> bool:
+        """Whether `robot`, sent aside, is short of its spot and got no nearer it for a
+        deadlock period."""
+        aside = robot.aside
+        return (
+            aside is not None
+            and robot.watched_goal == aside.spot
+            and t - robot.progress_s >= self.retry_s - 1e-9
+            and math.hypot(aside.spot[0] - robot.x, aside.spot[1] - robot.y) > self.arrival_m
         )
 
     def _back_off(

@@ -93,7 +93,15 @@ class Sensing:
         tol = self.scenario.arrival_tolerance_m
         for r in robots:
             goal = self.make_way.goal_of(r, t)
+            aside = r.aside
             self._watch_progress(r, goal, t, tol, priority)
+            if r.aside is not None and r.aside is not aside:
+                # Sent aside by its own watch (it gave way, or backs off): it heads for the
+                # spot from this tick on, and the robots that blocked its way to `goal` block
+                # nothing there. Shown that goal with them, a follower found no way round them
+                # and handed its job back in the very tick it stepped aside (fuzz s31-0025,
+                # s31-0047: 5 of 13 hand-backs), and the print began anew elsewhere.
+                goal, r.blockers = r.aside.spot, ()
             if (
                 r.turn_rate is not None
                 and goal is not None
