@@ -33,6 +33,8 @@ and the run's record (samples, events, print caps). Finding kinds:
 ``job_waiting``   a job stays unassigned for `WAIT_S` seconds while a robot is idle
 ``job_not_done``  a job released `DONE_GRACE_S` seconds or more before the end is neither
                   delivered nor failed with a reason
+``controller_error`` a robot's controller raised while it had somewhere to go (the agent
+                  brakes the robot and counts it: summary.json's ``goal_errors``)
 ``run_error``     the floor and scenario loaded, but the run raised a FleetError
 ``crash``         any other exception (its traceback is saved)
 
@@ -106,6 +108,7 @@ KINDS = (
     "stuck_home",
     "job_waiting",
     "job_not_done",
+    "controller_error",
     "run_error",
     "crash",
 )
@@ -940,6 +943,22 @@ def engine_counts(summary: Mapping[str, Any]) -> dict[str, int]:
     }
 
 
+def controller_errors(summary: Mapping[str, Any]) -> list[Finding]:
+    """A finding per robot whose controller raised while it had somewhere to go (its agent
+    braked it instead: the run goes on, but the controller has a bug)."""
+    return [
+        Finding(
+            "controller_error",
+            r["id"],
+            0.0,
+            f"{r['goal_errors']} of its {r['goal_commands']} commands with somewhere to go were "
+            "errors (the controller raised; the agent's log has the first traceback)",
+        )
+        for r in summary.get("robots", [])
+        if r.get("goal_errors", 0) > 0
+    ]
+
+
 def record_of(world: Any) -> RunRecord:
     """The oracle's input from a finished `World` (the recorder's samples at full precision)."""
     sc = world.scenario
@@ -982,7 +1001,7 @@ def run_folder(folder: Path, name: str = "", controller: str = "", note: str = "
             return out
         out.engine = engine_counts(result.summary)
         model = MapModel.read(folder / "floor.toml")
-        out.findings = Oracle(model).judge(record_of(world))
+        out.findings = Oracle(model).judge(record_of(world)) + controller_errors(result.summary)
         if out.findings:
             out.status = "failed"
         if out.findings or out.engine_flagged:
