@@ -954,7 +954,7 @@ def controller_errors(summary: Mapping[str, Any]) -> list[Finding]:
             f"{r['goal_errors']} of its {r['goal_commands']} commands with somewhere to go were "
             "errors (the controller raised; the agent's log has the first traceback)",
         )
-        for r in summary.get("robots", [])
+        for r in summary.get("per_robot", [])
         if r.get("goal_errors", 0) > 0
     ]
 

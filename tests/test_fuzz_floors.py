@@ -232,12 +232,13 @@ def test_a_job_assigned_as_it_is_released_is_not_waiting(oracle):
 
 def test_a_controller_that_raised_is_a_finding():
     summary = {
-        "robots": [
+        "robots": 2,
+        "per_robot": [
             {"id": "r01", "goal_commands": 400, "goal_errors": 0},
             {"id": "r02", "goal_commands": 380, "goal_errors": 7},
-        ]
+        ],
     }
     found = fz.controller_errors(summary)
     assert [(f.kind, f.robot) for f in found] == [("controller_error", "r02")]
     assert "7 of its 380 commands" in found[0].detail
-    assert fz.controller_errors({"robots": []}) == []
+    assert fz.controller_errors({"robots": 0, "per_robot": []}) == []
