@@ -34,7 +34,7 @@ from fleet.errors import NoPathError
 from fleet.floor import Floor
 from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec
-from fleet.plugins.robot import unseen_step
+from fleet.plugins.robot import stray_between
 
 __all__ = ["MakeWay", "Aside", "AWAY_M", "HOLD_FACTOR", "PASSED_FACTOR"]
 
@@ -85,11 +85,10 @@ class Aside:
 def kept_gap(robot: RobotState, other: RobotState | None = None) -> float:
     """The gap (m) `robot` keeps from neighbour `other` (None: one like itself) on top of the
     two radii: the follower's margin and the step the neighbour may take unseen between two of
-    `robot`'s looks (`fleet.plugins.robot.neighbour_stray`: by its own limits, over the longer
-    of the two periods)."""
+    `robot`'s looks (`fleet.plugins.robot.stray_between`: by its own limits, over the longer of
+    the two periods)."""
     spec = robot.spec
-    them = spec if other is None else other.spec
-    return FOLLOWER_MARGIN_M + unseen_step(max(spec.period, them.period), them.a_max, them.v_max)
+    return FOLLOWER_MARGIN_M + stray_between(spec, spec if other is None else other.spec)
 
 
 class MakeWay:

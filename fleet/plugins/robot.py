@@ -21,7 +21,14 @@ import numpy as np
 
 from fleet.plugins.contracts import Neighbour, RobotSpec
 
-__all__ = ["DoubleIntegrator", "brake_input", "clip", "neighbour_stray", "unseen_step"]
+__all__ = [
+    "DoubleIntegrator",
+    "brake_input",
+    "clip",
+    "neighbour_stray",
+    "stray_between",
+    "unseen_step",
+]
 
 
 def clip(value: float, bound: float) -> float:
@@ -91,12 +98,17 @@ def unseen_step(dt: float, a_max: float, v_max: float = math.inf) -> float:
     return math.sqrt(2.0) * min(a_max * dt, v_max) * dt
 
 
-def neighbour_stray(n: Neighbour, own: RobotSpec) -> float:
-    """How far (m) neighbour `n` may stray unseen, between two looks of a robot with spec
-    `own`, from where its plan or braking puts it: `unseen_step` with the neighbour's own
-    limits (`Neighbour.limits`) over the longer of the two periods. A neighbour of a shorter
-    period steps several times between two looks; its velocity still changes by at most
-    ``a_max`` per second, so its position by at most ``a_max * T**2`` over a window ``T``. In a
-    fleet of one kind this is ``unseen_step(own.period, own.a_max, own.v_max)``."""
-    theirs = n.limits(own)
+def stray_between(own: RobotSpec, theirs: RobotSpec) -> float:
+    """How far (m) a robot with spec `theirs` may stray unseen, between two looks of a robot
+    with spec `own`, from where its plan or braking puts it: `unseen_step` with its own limits
+    over the longer of the two periods. A robot of a shorter period steps several times between
+    two looks; its velocity still changes by at most ``a_max`` per second, so its position by at
+    most ``a_max * T**2`` over a window ``T``. For robots of one kind this is
+    ``unseen_step(own.period, own.a_max, own.v_max)``."""
     return unseen_step(max(own.period, theirs.period), theirs.a_max, theirs.v_max)
+
+
+def neighbour_stray(n: Neighbour, own: RobotSpec) -> float:
+    """`stray_between` for neighbour `n` as seen by a robot with spec `own`, by the limits the
+    observation gives (`Neighbour.limits`: the observer's where not known)."""
+    return stray_between(own, n.limits(own))

@@ -29,7 +29,7 @@ from fleet.floor import Floor, convex_pieces
 from fleet.floor.build import GRID
 from fleet.paths import PathPlanner
 from fleet.plugins import Neighbour, RobotSpec
-from fleet.plugins.robot import brake_input, neighbour_stray, unseen_step
+from fleet.plugins.robot import brake_input, stray_between, unseen_step
 
 __all__ = [
     "DEFAULT_MARGIN_M",
@@ -116,11 +116,11 @@ class Forecast:
     ) -> Forecast:
         """The forecast of neighbour `n` seen at time `t` by a robot of period `dt`,
         acceleration bound `a_max` and speed bound `v_max`. The neighbour brakes, and strays
-        unseen (`neighbour_stray`), by its own limits where the observation gives them
+        unseen (`stray_between`), by its own limits where the observation gives them
         (`Neighbour.limits`; a fleet may mix robots), by the observer's where not."""
         own = RobotSpec(v_max, a_max, n.radius, dt)
-        slack = neighbour_stray(n, own)
         theirs = n.limits(own)
+        slack = stray_between(own, theirs)
         dt, a_max = theirs.period, theirs.a_max
         if n.plan:
             # Its plan from where it is now (a plan that has ended holds it where it is). The
