@@ -27,6 +27,7 @@ from fleet.floor import (
 )
 from fleet.floor.mapfile import grow
 from fleet.paths import Path, PathPlanner, Reference
+from fleet.paths.limits import SpeedLimits
 from fleet.paths.planner import KEY_DECIMALS
 
 MAPS = FilePath(__file__).resolve().parent.parent / "maps"
@@ -254,6 +255,34 @@ def test_reference_along_the_rest_of_a_path_from_a_stop_on_it():
     # A stop right on a waypoint drops it (no zero-length leg).
     on = planner.reference_along(tuple(wp[1].tolist()), wp[1:].tolist(), dt=0.25, t0=0.0)
     assert np.array_equal(on.path.waypoints, wp[1:])
+
+
+def test_reference_along_from_a_stop_on_a_seam_nanometres_short_of_a_waypoint():
+    # Fuzz case s21-0396 (tests/path_cases/README.md): the 2 nm leg to the next waypoint was
+    # timed in two 1 nm steps, and the second, overlapping neither region by more than
+    # OVERLAP_TOL, failed the self-check ("step 2 ... leaves the free space").
+    floor = load_floor(FilePath(__file__).resolve().parent / "path_cases" / "seam_at_a_stop.toml")
+    planner = PathPlanner(floor, v_max=0.61, a_max=1.92)
+    stop = (22.27456544, -40.405857964)
+    rest = [(22.274565442, -40.405857964), (18.9647, -30.5555)]
+    ref = planner.reference_along(stop, rest, dt=0.1, t0=0.0)
+    assert_valid(floor, ref, stop, rest[-1], v_max=0.61, a_max=1.92)
+
+
+def test_a_step_too_short_to_overlap_a_region_is_judged_where_it_starts():
+    limits = SpeedLimits(hall(), 1.0)
+    # 1.2 nm across the line x = 4 between two regions: longer than OVERLAP_TOL, but in
+    # neither region by that much.
+    a, b = np.array([4.0 - 0.6e-9, 2.0]), np.array([4.0 + 0.6e-9, 2.0])
+    lim, free = limits.of_segments(a[None], b[None])
+    assert free.all() and (lim == 1.0).all()
+    assert limits.stretches(a, b) == []
+    # The same length inside the machine (4..6 x 4..6) is not free, for either.
+    inside = np.array([5.0, 5.0])
+    lim, free = limits.of_segments(np.array([inside]), np.array([inside + [1e-7, 0.0]]))
+    assert not free.any()
+    assert limits.stretches(inside, inside + [1e-7, 0.0]) is None
+    assert limits.segment_time(inside, inside + [1e-7, 0.0]) is None
 
 
 def test_reference_along_refuses_a_leg_through_an_obstacle():

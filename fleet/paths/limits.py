@@ -3,7 +3,8 @@
 The floor's convex regions are held in H-representation (``A x <= b``) and segments are clipped
 against them (Cyrus-Beck), vectorised over many segments at once. A segment's limit is the
 component-wise minimum of the per-axis limits of every region it overlaps with positive length,
-and of the robot's own limit; a segment that leaves the free space has none. A segment that
+and of the robot's own limit; a segment that leaves the free space has none. One too short to
+overlap any region by `OVERLAP_TOL` is judged as a point is, by where it starts. A segment that
 runs along a region's boundary (within `fleet.floor.BOUNDARY_BAND` of it for more than
 `ALONG_M`) is bound by that region too over that stretch, even from just outside it: the safety
 checker binds a step that enters no region deeper than the band by the regions on both sides.
@@ -150,8 +151,8 @@ class SpeedLimits:
         """Vectorised `PathPlanner.speed_limit`: limits (n, 2) and whether each segment is free."""
         L, _, lo, hi, contains, sel, lo_b, hi_b = self._clip(P, Q, BOUNDARY_BAND)
         free = self._covered(L, lo, hi, contains)
+        point = _point_like(L, lo, hi)
         lo, hi = _binding(lo, hi, lo_b, hi_b)
-        point = L <= OVERLAP_TOL
         over = (hi - lo) > OVERLAP_TOL
         use = np.where(point[:, None], contains, over)
         lim = np.where(use[:, :, None], self.per_region[sel][None, :, :], np.inf).min(
@@ -162,9 +163,9 @@ class SpeedLimits:
 
     def _covered(self, L, lo, hi, contains) -> np.ndarray:
         """Whether each clipped segment stays in the free space (no gap over `GAP_TOL`)."""
-        point = L <= OVERLAP_TOL
         if lo.shape[1] == 0:
             return np.zeros(len(L), dtype=bool)
+        point = _point_like(L, lo, hi)
         over = (hi - lo) > OVERLAP_TOL
         # Covered when the overlaps, sorted by start, leave no gap longer than GAP_TOL.
         lo_m = np.where(over, lo, np.inf)
@@ -186,7 +187,9 @@ class SpeedLimits:
         or runs along (see the module docstring), so any sub-segment of a stretch obeys it.
         None if the segment leaves the free space.
         """
-        L, _, lo, hi, _, sel, lo_b, hi_b = self._clip(p[None, :], q[None, :], BOUNDARY_BAND)
+        L, _, lo, hi, contains, sel, lo_b, hi_b = self._clip(p[None, :], q[None, :], BOUNDARY_BAND)
+        if _point_like(L, lo, hi)[0]:
+            return [] if contains.any() else None
         lo_b, hi_b = _binding(lo, hi, lo_b, hi_b)
         L, lo, hi, lo_b, hi_b = float(L[0]), lo[0], hi[0], lo_b[0], hi_b[0]
         over = np.flatnonzero((hi - lo) > OVERLAP_TOL)
@@ -213,9 +216,7 @@ class SpeedLimits:
                 out[-1] = (out[-1][0], b, lim)
             else:
                 out.append((a if out else 0.0, b, lim))
-        if not out:
-            return None if L > GAP_TOL else []
-        return out
+        return out or None
 
     def segment_time(self, p: np.ndarray, q: np.ndarray) -> float | None:
         """Time (s) to drive ``p -> q`` with every stretch at its limit; None if not free."""
@@ -301,3 +302,11 @@ def speeds_along_rows(lim: np.ndarray, u: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore"):
         r = np.where(np.abs(u) > 0, lim / np.abs(u), np.inf)
     return r.min(axis=1)
+
+
+def _point_like(L: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Segments judged by where they start, not by what they overlap: those no longer than
+    `OVERLAP_TOL`, and those no longer than `GAP_TOL` that overlap no region by more than
+    `OVERLAP_TOL` (a step of a few nanometres across a boundary between regions)."""
+    over = ((hi - lo) > OVERLAP_TOL).any(axis=1) if lo.shape[1] else np.zeros(len(L), bool)
+    return (L <= OVERLAP_TOL) | ((L <= GAP_TOL) & ~over)
