@@ -1182,6 +1182,8 @@ def write_findings(folder: Path, outcome: Outcome, generated_by: str = "") -> No
     lines += [f"  or: cd {folder} && fleet run scen.toml --out runs/case --no-figures"]
     if (folder / "run").exists():
         lines += ["the engine's run directory is in run/ (trajectories.csv, events.csv ...)"]
+    if (folder / "run-long").exists():
+        lines += ["the longer run that confirmed job_not_done is in run-long/"]
     if outcome.traceback:
         lines += ["", outcome.traceback]
     (folder / "findings.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
