@@ -942,7 +942,7 @@ class Outcome:
 
     name: str
     controller: str
-    status: str  # "ok", "refused" or "failed" (findings, a run error or a crash)
+    status: str  # "ok", "refused" or "failed" (findings not in INFO_KINDS, a run error, a crash)
     findings: list[Finding] = field(default_factory=list)
     engine: dict[str, int] = field(default_factory=dict)
     refusal: str = ""
@@ -1105,8 +1105,8 @@ def run_folder(
         long_world = None
         if confirm and any(f.open_job for f in out.findings):
             long_s = confirm_duration(scenario.duration_s)
-            long_world = World(scenario.override(duration=long_s))
             try:
+                long_world = World(scenario.override(duration=long_s))
                 long_world.run()
             except FleetError as exc:  # the first run's findings stand, unconfirmed
                 why = str(exc).splitlines()[0]
