@@ -1222,7 +1222,7 @@ def report(tally: Tally, out_dir: Path, elapsed: float) -> str:
     late = [o for o in outs if _has(o, "job_late")]
     if late:
         lines.append(
-            f"late jobs (not done at the end, done in a {CONFIRM_FACTOR:g}x longer run; "
+            "late jobs (not done at the end, done in a longer run of the case; "
             f"informational): {tally.kinds()['job_late'][0]} in {len(late)} runs, "
             f"{sum(1 for o in late if o.status != 'failed')} of them without other findings"
         )
