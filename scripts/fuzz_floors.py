@@ -32,11 +32,21 @@ and the run's record (samples, events, print caps). Finding kinds:
 ``stuck_home``    an idle robot away from home (return_home) stays put the same way
 ``job_waiting``   a job stays unassigned for `WAIT_S` seconds while a robot is idle
 ``job_not_done``  a job released `DONE_GRACE_S` seconds or more before the end is neither
-                  delivered nor failed with a reason
+                  delivered nor failed with a reason, and is still not in a longer run of the
+                  same case (`confirm_duration`; or it failed without a reason)
+``job_late``      (informational: the case does not fail) such a job was not done at the end,
+                  but the longer run delivers it or fails it with a reason: slow, not stuck
 ``controller_error`` a robot's controller raised while it had somewhere to go (the agent
                   brakes the robot and counts it: summary.json's ``goal_errors``)
 ``run_error``     the floor and scenario loaded, but the run raised a FleetError
 ``crash``         any other exception (its traceback is saved)
+
+A case with a ``job_not_done`` finding (whatever else it found) is run again, the same floor,
+scenario and seed, for `confirm_duration` seconds; only the jobs not done in the first run are
+judged there (jobs released after the first run's end, and the longer run's other findings, do
+not count): each ended one becomes ``job_late``, the rest stay ``job_not_done``. The first part
+of the longer run is the first run (the engine's run does not depend on its duration up to the
+end), so it adds time only, and only for these cases.
 
 A map or scenario the loader refuses with a `FleetError` is counted as *refused* (allowed by
 the issue), with the first line of its message.
@@ -68,7 +78,7 @@ import tomllib
 import traceback
 from collections import Counter, defaultdict
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -93,6 +103,14 @@ LIVENESS_MIN_S = 180.0
 WAIT_S = 60.0
 #: Every job released this long before the end must be delivered or failed.
 DONE_GRACE_S = 150.0
+#: A job not done at the end is judged again in a run this much longer (`confirm_duration`):
+#: three times as long, and at least 10 minutes more, so a job that is only slow (a long via
+#: trip at a coarse period, a long print, a queue at one station) ends there, while one that
+#: waits on something that never changes still does not.
+CONFIRM_FACTOR = 3.0
+CONFIRM_EXTRA_S = 600.0
+#: Kinds that are reported and counted but do not make a case fail.
+INFO_KINDS = frozenset({"job_late"})
 #: The engine's own safety counts (summary.json ``violations``).
 SAFETY_KEYS = ("collision", "obstacle", "speed_zone", "print_speed")
 #: Finding kinds in the order the table prints them.
@@ -108,6 +126,7 @@ KINDS = (
     "stuck_home",
     "job_waiting",
     "job_not_done",
+    "job_late",
     "controller_error",
     "run_error",
     "crash",
@@ -546,12 +565,20 @@ class MapModel:
         )
 
 
+def confirm_duration(duration: float) -> float:
+    """How long the run that confirms a ``job_not_done`` finding lasts (`CONFIRM_FACTOR`)."""
+    return max(CONFIRM_FACTOR * duration, duration + CONFIRM_EXTRA_S)
+
+
 @dataclass(frozen=True)
 class Finding:
     kind: str
     robot: str
     t: float
     detail: str
+    #: A ``job_not_done`` finding's job when a longer run may still end it (not one that failed
+    #: without a reason): `confirm_not_done` judges it again.
+    open_job: str = ""
 
     def __str__(self) -> str:
         who = f" {self.robot}" if self.robot else ""
@@ -826,6 +853,7 @@ class Oracle:
                         end,
                         f"job {job} released at {t0:.1f} s is neither delivered nor failed at "
                         f"the end ({how})",
+                        open_job=job,
                     )
                 )
         # (e) no job waits beside an idle robot
@@ -914,7 +942,7 @@ class Outcome:
 
     name: str
     controller: str
-    status: str  # "ok", "refused" or "failed" (findings, a run error or a crash)
+    status: str  # "ok", "refused" or "failed" (findings not in INFO_KINDS, a run error, a crash)
     findings: list[Finding] = field(default_factory=list)
     engine: dict[str, int] = field(default_factory=dict)
     refusal: str = ""
@@ -976,8 +1004,80 @@ def record_of(world: Any) -> RunRecord:
     )
 
 
-def run_folder(folder: Path, name: str = "", controller: str = "", note: str = "") -> Outcome:
-    """Load, run and judge the case in `folder` (floor.toml + scen.toml)."""
+def job_ends(
+    events: Iterable[tuple[float, str, str, str, str]],
+) -> dict[str, tuple[str, float, str]]:
+    """Job -> (how it ended, when, who holds it at the end), from (t, event, job, robot,
+    station) events as the recorder keeps them: "delivered", "failed: <reason>" or "failed
+    without a reason" at the time of that event, or "" (not ended) with the time of its last
+    event. The same reading as `Oracle.liveness`'s."""
+    out: dict[str, tuple[str, float, str]] = {}
+    for t, ev, job, robot, station in events:
+        state, _, who = out.get(job, ("", t, ""))
+        if ev == "assigned":
+            who = robot
+        elif ev in ("delivered", "handed_back", "reoffered", "failed"):
+            who = ""
+            if ev == "delivered":
+                state = "delivered"
+            elif ev == "failed":
+                state = f"failed: {station}" if station else "failed without a reason"
+            elif state:
+                continue  # handed back after it ended: it stays ended, when it was
+        elif ev != "released":
+            continue
+        out[job] = (state, t, who)
+    return out
+
+
+def confirm_not_done(
+    findings: list[Finding], end: float, long_s: float, long_events: Iterable[tuple]
+) -> list[Finding]:
+    """`findings` with each open ``job_not_done`` (a job not ended at `end`, the first run's
+    end) judged by the run of `long_s` seconds whose events are `long_events`: a job ended there
+    (delivered, or failed with a reason) becomes ``job_late``; one not ended, or failed without
+    a reason, stays ``job_not_done``, saying the longer run confirmed it. Only these jobs are
+    judged: jobs released after `end` do not matter."""
+    ends = job_ends(long_events)
+    out = []
+    for f in findings:
+        if f.kind != "job_not_done" or not f.open_job:
+            out.append(f)
+            continue
+        job = f.open_job
+        state, t, who = ends.get(job, ("", end, ""))
+        first = f.detail.split(" is neither", 1)[0]  # "job j released at T s"
+        held = f"held by {f.robot}" if f.robot else "unassigned"
+        if state and state != "failed without a reason":
+            how = "delivered" if state == "delivered" else state.replace(": ", " (") + ")"
+            out.append(
+                Finding(
+                    "job_late",
+                    f.robot,
+                    t,
+                    f"{first} was not done at the end ({end:g} s, {held}); {how} at {t:.1f} s "
+                    f"in a {long_s:g}-s run of the same case",
+                )
+            )
+            continue
+        now = "failed without a reason" if state else (f"held by {who}" if who else "unassigned")
+        out.append(
+            Finding(
+                "job_not_done",
+                f.robot,
+                f.t,
+                f"{f.detail}; confirmed by a {long_s:g}-s run of the same case ({now} at its end)",
+            )
+        )
+    return out
+
+
+def run_folder(
+    folder: Path, name: str = "", controller: str = "", note: str = "", confirm: bool = True
+) -> Outcome:
+    """Load, run and judge the case in `folder` (floor.toml + scen.toml). With `confirm`, a
+    ``job_not_done`` finding is judged again by a longer run (`confirm_not_done`, run only when
+    there is one); the longer run is written to `folder`/run-long when one is confirmed."""
     from fleet.engine import World
     from fleet.errors import FleetError
     from fleet.scenario import load_scenario
@@ -1002,10 +1102,34 @@ def run_folder(folder: Path, name: str = "", controller: str = "", note: str = "
         out.engine = engine_counts(result.summary)
         model = MapModel.read(folder / "floor.toml")
         out.findings = Oracle(model).judge(record_of(world)) + controller_errors(result.summary)
-        if out.findings:
+        long_world = None
+        if confirm and any(f.open_job for f in out.findings):
+            long_s = confirm_duration(scenario.duration_s)
+            try:
+                long_world = World(scenario.override(duration=long_s))
+                long_world.run()
+            except FleetError as exc:  # the first run's findings stand, unconfirmed
+                why = str(exc).splitlines()[0]
+                out.findings = [
+                    replace(
+                        f, detail=f"{f.detail}; not confirmed: the {long_s:g}-s run raised {why}"
+                    )
+                    if f.open_job
+                    else f
+                    for f in out.findings
+                ]
+                long_world = None
+            else:
+                events = [
+                    (e.t, e.event, e.job, e.robot, e.station) for e in long_world.recorder.events
+                ]
+                out.findings = confirm_not_done(out.findings, float(world.env.now), long_s, events)
+        if any(f.kind not in INFO_KINDS for f in out.findings):
             out.status = "failed"
-        if out.findings or out.engine_flagged:
+        if out.status == "failed" or out.engine_flagged:
             world.write(folder / "run")
+            if long_world is not None and _has(out, "job_not_done"):
+                long_world.write(folder / "run-long")
     except Exception as exc:  # noqa: BLE001 - every other exception is a finding
         out.status = "failed"
         out.findings.append(Finding("crash", "", 0.0, f"{type(exc).__name__}: {exc}"))
@@ -1058,6 +1182,8 @@ def write_findings(folder: Path, outcome: Outcome, generated_by: str = "") -> No
     lines += [f"  or: cd {folder} && fleet run scen.toml --out runs/case --no-figures"]
     if (folder / "run").exists():
         lines += ["the engine's run directory is in run/ (trajectories.csv, events.csv ...)"]
+    if (folder / "run-long").exists():
+        lines += ["the longer run that confirmed job_not_done is in run-long/"]
     if outcome.traceback:
         lines += ["", outcome.traceback]
     (folder / "findings.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -1093,6 +1219,13 @@ def report(tally: Tally, out_dir: Path, elapsed: float) -> str:
         f"floors: {len(outs)} ({len(ran)} run, {len(refused)} refused), "
         f"{len(failed)} with findings; {elapsed:.0f} s wall",
     ]
+    late = [o for o in outs if _has(o, "job_late")]
+    if late:
+        lines.append(
+            "late jobs (not done at the end, done in a longer run of the case; "
+            f"informational): {tally.kinds()['job_late'][0]} in {len(late)} runs, "
+            f"{sum(1 for o in late if o.status != 'failed')} of them without other findings"
+        )
     by_ctl = Counter(o.controller for o in ran)
     walls = [o.wall_s for o in ran]
     if walls:
@@ -1107,7 +1240,7 @@ def report(tally: Tally, out_dir: Path, elapsed: float) -> str:
         )
     lines += ["", f"{'finding':<14} {'count':>6} {'runs':>6}   follower  mpc"]
     for kind, (n, runs) in tally.kinds().items():
-        per = Counter(o.controller for o in failed if any(f.kind == kind for f in o.findings))
+        per = Counter(o.controller for o in outs if _has(o, kind))
         lines.append(
             f"{kind:<14} {n:>6} {runs:>6}   {per.get('follower', 0):>8} {per.get('mpc', 0):>4}"
         )

@@ -242,3 +242,167 @@ def test_a_controller_that_raised_is_a_finding():
     assert [(f.kind, f.robot) for f in found] == [("controller_error", "r02")]
     assert "7 of its 380 commands" in found[0].detail
     assert fz.controller_errors({"robots": 0, "per_robot": []}) == []
+
+
+# --- job_not_done confirmed by a longer run -----------------------------------------------------
+
+HALL = """
+[floor]
+name = "long hall"
+rect = [0, 0, 24, 8]
+default_v_max = 1.0
+clearance = 0.4
+
+[[stations]]
+name = "depot"
+at = [2, 4]
+kind = "depot"
+
+[[stations]]
+name = "far"
+at = [22, 4]
+kind = "delivery"
+"""
+
+#: One follower, one job to "far" (20 m) at t = 0, a 180 s run: the shortest run the oracle
+#: judges for liveness, the job released more than DONE_GRACE_S before its end.
+TRIP = """
+[scenario]
+name = "{name}"
+map = "floor.toml"
+duration_s = 180
+seed = 1
+arrival_tolerance_m = 0.05
+sensing_radius_m = 5.0
+deadlock_after_s = 30
+
+[robots]
+count = 1
+start = ["depot"]
+v_max = {v_max}
+a_max = 0.5
+radius = 0.4
+period_s = 1.0
+return_home = false
+
+[controller]
+name = "follower"
+
+[dispatcher]
+name = "greedy"
+
+[jobs]
+mode = "scripted"
+
+[[jobs.scripted]]
+at_s = 0
+station = "far"
+{extra}
+"""
+
+
+def trip_case(tmp_path: Path, name: str, v_max: float = 1.0, extra: str = "") -> Path:
+    folder = tmp_path / name
+    folder.mkdir()
+    (folder / "floor.toml").write_text(HALL)
+    (folder / "scen.toml").write_text(TRIP.format(name=name, v_max=v_max, extra=extra))
+    return folder
+
+
+def test_a_job_only_slow_at_the_end_is_reported_late_not_undone(tmp_path):
+    # At 0.08 m/s the 20 m trip takes about 250 s: not done at 180 s, delivered in the longer
+    # run (780 s). The first run alone finds job_not_done; confirmed, it is job_late, which
+    # is counted but does not fail the case.
+    folder = trip_case(tmp_path, "slow_trip", v_max=0.08)
+    first = fz.run_folder(folder, confirm=False)
+    assert [f.kind for f in first.findings] == ["job_not_done"]
+    assert first.status == "failed"
+    o = fz.run_folder(folder)
+    assert [f.kind for f in o.findings] == ["job_late"], o.findings
+    assert o.status == "ok"
+    late = o.findings[0]
+    assert late.robot == "r01" and 180.0 < late.t < fz.confirm_duration(180.0) == 780.0
+    assert "delivered at" in late.detail and "780-s run" in late.detail
+    tally = fz.Tally()
+    tally.add(o)
+    assert tally.kinds()["job_late"] == (1, 1) and tally.kinds()["job_not_done"] == (0, 0)
+    text = fz.report(tally, tmp_path, 1.0)
+    assert "0 with findings" in text and "job_late" in text
+
+
+def test_the_longer_run_begins_as_the_first_run(tmp_path):
+    # The confirmation judges the same run, only longer: up to the first run's end its events
+    # and samples are the first run's (the engine does not look at duration_s on the way).
+    from fleet.engine import World
+    from fleet.scenario import load_scenario
+
+    sc = load_scenario(trip_case(tmp_path, "slow_trip", v_max=0.08) / "scen.toml")
+    short, long = World(sc), World(sc.override(duration=fz.confirm_duration(sc.duration_s)))
+    short.run()
+    long.run()
+    a, b = short.recorder.events, long.recorder.events
+    assert len(b) > len(a) and b[: len(a)] == a
+    ta, tb = short.recorder.trajectories["r01"].arrays(), long.recorder.trajectories["r01"].arrays()
+    assert len(tb[0]) > len(ta[0])
+    for x, y in zip(ta, tb, strict=True):
+        np.testing.assert_array_equal(x, y[: len(x)])
+
+
+@pytest.mark.parametrize(
+    ("name", "extra"),
+    [
+        # The robot prints the part for 100,000 s: held by r01 to the end of any run.
+        ("endless_print", '[[jobs.scripted.print]]\nkind = "infill"\nstart_s = 0.0\nend_s = 1e5'),
+        # The only robot breaks down at 10 s and is not repaired for 1e6 s: the job it hands
+        # back waits, unassigned, to the end of any run. (The loader refuses a station no robot
+        # can reach, so a job cannot be sent where it never arrives.)
+        (
+            "broken_for_good",
+            '[breakdowns]\nmtbf_s = 10\nmttr_s = 1e6\nfailures = "fixed"\nrepairs = "fixed"',
+        ),
+    ],
+)
+def test_a_job_never_done_stays_not_done_confirmed_by_the_longer_run(tmp_path, name, extra):
+    folder = trip_case(tmp_path, name, extra=extra)
+    o = fz.run_folder(folder)
+    undone = [f for f in o.findings if f.kind == "job_not_done"]
+    assert len(undone) == 1 and not fz._has(o, "job_late"), o.findings
+    assert "confirmed by a 780-s run" in undone[0].detail
+    assert o.status == "failed"
+    # Both runs are saved with the case: the first and the one that confirmed it.
+    assert (folder / "run" / "events.csv").is_file()
+    assert (folder / "run-long" / "events.csv").is_file()
+
+
+def test_only_the_jobs_open_at_the_first_end_are_judged_again():
+    # j1 is open at 180 s and delivered later: late. j2 is released after the first end and
+    # never done: it does not matter. j3 fails without a reason in the longer run: not done.
+    # j4 is delivered, then handed back (a stale event): it stays delivered, when it was.
+    findings = [
+        fz.Finding("job_not_done", "r01", 180.0, "job j1 released at 0.0 s is neither ...", "j1"),
+        fz.Finding("job_not_done", "r02", 180.0, "job j3 released at 5.0 s is neither ...", "j3"),
+        fz.Finding("job_not_done", "", 180.0, "job j4 released at 6.0 s is neither ...", "j4"),
+        fz.Finding("contact", "r01", 20.0, "r01 and r02 ..."),
+    ]
+    events = [
+        (0.0, "released", "j1", "", "a"),
+        (0.0, "assigned", "j1", "r01", "a"),
+        (5.0, "released", "j3", "", "a"),
+        (5.0, "assigned", "j3", "r02", "a"),
+        (6.0, "released", "j4", "", "a"),
+        (200.0, "released", "j2", "", "a"),
+        (250.0, "delivered", "j1", "r01", "a"),
+        (300.0, "failed", "j3", "r02", ""),
+        (310.0, "assigned", "j4", "r01", "a"),
+        (320.0, "delivered", "j4", "r01", "a"),
+        (330.0, "handed_back", "j4", "r01", "a"),
+    ]
+    out = fz.confirm_not_done(findings, 180.0, 780.0, events)
+    assert [(f.kind, f.t) for f in out] == [
+        ("job_late", 250.0),
+        ("job_not_done", 180.0),
+        ("job_late", 320.0),
+        ("contact", 20.0),
+    ]
+    assert "failed without a reason at its end" in out[1].detail
+    assert "j2" not in " ".join(f.detail for f in out)
