@@ -31,7 +31,8 @@ from fleet.plugins import (
 from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet.scenario import parse_scenario
 from fleet_plugins.mpc import MPCController
-from fleet_plugins.mpc.separation import Obstacle, build_separation, predict, spans
+from fleet_plugins.mpc.neighbours import closest_approach
+from fleet_plugins.mpc.separation import ACROSS, Obstacle, build_separation, predict, spans
 
 SPEC = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.5)
 CONTACT = 0.8  # the two robots' radii: closer than this is a collision
@@ -253,6 +254,53 @@ def test_a_robot_already_too_close_makes_its_square_soft_not_the_problem_infeasi
     further = np.tile([7.5, 5.0], (n + 1, 1))  # 2.5 m away: the usual margin
     sep = build_separation([Obstacle.square("r2", further, 0.9, 0.1)], p_lo, p_hi)
     assert sep.groups > 0 and np.all(sep.group_slack == pytest.approx(0.1))
+
+
+def test_a_robot_inside_the_square_but_not_in_contact_gets_a_side_across_not_a_soft_square():
+    # 80 MPC robots on the fleet scenario (t = 100 s): r22's next position was 0.40 m along x
+    # and 0.696 m along y from r46 at rest, 0.8025 m apart (radii 0.4): inside the square, out
+    # of contact. The whole square went soft and r22's plan came to 0.7985 m (contact).
+    n = 6
+    here = np.array([10.40, 4.304])
+    p_lo = np.vstack([[here] * 2, [[8.0, 3.0]] * (n - 1)])
+    p_hi = np.vstack([[here] * 2, [[12.0, 7.0]] * (n - 1)])
+    other = np.tile([10.0, 5.0], (n + 1, 1))
+    sep = build_separation([Obstacle.square("r2", other, 0.9, 0.1)], p_lo, p_hi)
+    assert not sep.infeasible
+    assert np.all(sep.group_slack == pytest.approx(0.1))  # only the margin is soft
+    np.testing.assert_allclose(sep.normals[0], (here - other[0]) / np.linalg.norm(here - other[0]))
+    assert ACROSS in sep.binary_side
+    # A plan point in contact breaks the side across; one 0.8 m along the normal keeps it.
+    k = int(sep.group_last[0])
+    assert sep._clearance(0, ACROSS, k, np.array([10.2, 4.5])) + 0.1 < 0
+    assert sep._clearance(0, ACROSS, k, other[k] + 0.8 * sep.normals[0]) + 0.1 == pytest.approx(0)
+
+
+@pytest.mark.parametrize(("vx", "vy", "dy"), [(-0.6, 0.0, 0.696), (-0.5, 0.2, 0.75)])
+def test_a_plan_from_inside_the_square_keeps_out_of_contact(vx, vy, dy) -> None:
+    # r1 heads west under r2, parked at (10, 5): its next position is 0.4 m east and `dy`
+    # south of r2, inside the square but out of contact, and its goal lies west on that line.
+    # With the whole square soft, plans came to 0.798 and 0.789 m, and r1 to 0.789 m (contact).
+    run = Run(solving_mpc(horizon=12), parked, priority=5)
+    dt = SPEC.period
+    run.p, run.v = np.array([10.4 - vx * dt, 5.0 - dy - vy * dt]), np.array([vx, vy])
+    for _ in range(6):
+        cmd = run.step(goal=(2.0, 5.0 - dy))
+        assert cmd.status is ControlStatus.OK
+        plan = np.array([s[1:] for s in cmd.plan])
+        assert closest_approach(plan, np.tile([10.0, 5.0], (len(plan), 1))) >= CONTACT - 1e-6
+    assert min(run.gaps) >= CONTACT - 1e-6
+
+
+def test_when_the_side_across_is_too_strict_the_square_is_soft_and_the_plan_steers_away():
+    # Faster (1 m/s west) from 0.7 m south: every plan keeping to one side across would come
+    # closer along it on the next step, so the solve is infeasible; braking straight on would
+    # pass 0.7 m under r2. The soft square gets a plan that steers away, out of contact.
+    run = Run(solving_mpc(horizon=12), parked, priority=5)
+    run.p, run.v = np.array([10.4 + 1.0 * SPEC.period, 4.3]), np.array([-1.0, 0.0])
+    for _ in range(6):
+        assert run.step(goal=(2.0, 4.3)).status is ControlStatus.OK
+    assert min(run.gaps) >= CONTACT - 1e-6
 
 
 def test_prediction_interpolates_the_plan_and_holds_its_last_sample() -> None:

@@ -72,6 +72,13 @@ def solve_clear(
             assert p_lo is not None and p_hi is not None
             separation = build_separation(tuple(chosen), p_lo, p_hi, spans)
         solution = model.solve(data, warm, separation)
+        if separation is not None and not solution.outcome.usable and separation.normals.any():
+            # A side across a robot inside its square was too strict: soften that square
+            # instead, so that the plan steers away rather than brakes (`build_separation`).
+            assert p_lo is not None and p_hi is not None
+            spent += solution.solver_s
+            separation = build_separation(tuple(chosen), p_lo, p_hi, spans, across=False)
+            solution = model.solve(data, warm, separation)
         solution.solver_s += spent
         spent = solution.solver_s
         if not solution.outcome.usable or solution.p is None:

@@ -326,19 +326,25 @@ class TripModel:
         h.changeColsIntegrality(
             n_bin, binaries, np.full(n_bin, int(highspy.HighsVarType.kInteger), dtype=np.uint8)
         )
-        # Side rows: s p[e, axis] - M b + slack >= s c + d - M (three entries each).
+        # Side rows: s p[e, axis] - M b + slack >= s c + d - M (three entries each; four on a
+        # row across the line between two robots, n . p[e] - M b + slack >= ...).
         n_side = len(sep.row_lo)
         p_col = self._p_cols[sep.row_point]
         b_col = binaries[sep.row_binary]
         slack_col = base + n_bin + sep.binary_group[sep.row_binary]
-        side_idx = np.column_stack([p_col, b_col, slack_col]).astype(np.int32).ravel()
-        side_val = np.column_stack([sep.row_sign, -sep.row_big_m, np.ones(n_side)]).ravel()
+        two = sep.row_point2 >= 0
+        p2_col = self._p_cols[np.where(two, sep.row_point2, 0)]
+        entries = np.column_stack([p_col, b_col, slack_col, p2_col]).astype(np.int32)
+        values = np.column_stack([sep.row_coef, -sep.row_big_m, np.ones(n_side), sep.row_coef2])
+        used = np.column_stack([np.ones((n_side, 3), dtype=bool), two])
+        side_idx, side_val = entries[used], values[used]  # (row-major: row by row)
+        side_starts = np.concatenate([[0], np.cumsum(3 + two)[:-1]])
         # Group rows: one of the group's sides holds.
         order = np.argsort(sep.binary_group, kind="stable")
         sizes = np.bincount(sep.binary_group, minlength=n_grp)
         group_idx = binaries[order]
         starts = np.concatenate(
-            [np.arange(n_side) * 3, 3 * n_side + np.concatenate([[0], np.cumsum(sizes)[:-1]])]
+            [side_starts, len(side_idx) + np.concatenate([[0], np.cumsum(sizes)[:-1]])]
         ).astype(np.int32)
         index = np.concatenate([side_idx, group_idx]).astype(np.int32)
         value = np.concatenate([side_val, np.ones(n_bin)])

@@ -79,7 +79,8 @@ def refine_milp(
     """
     assert milp.regions is not None
     if separation is not None and milp.separation is not None:
-        p_lo, p_hi = separation.bounds(milp.separation, data.p_lo, data.p_hi)
+        assert milp.p is not None
+        p_lo, p_hi = separation.bounds(milp.separation, data.p_lo, data.p_hi, milp.p)
         data = StepData(p_lo, p_hi, data.v_lo, data.v_hi, data.z_ub, data.p_ref, data.v_ref)
     qp = refine_quadratic(
         trip,

@@ -23,8 +23,11 @@ region rows). The margin is soft: `slack` (one per robot and group, cost `SLACK_
 metre) lets a plan into the margin only where it cannot keep out of it (a neighbour whose plan
 moved by a few centimetres since the robot planned its fixed next position), never into contact
 (``r_i + r_j``, hard), unless the robots are already that close (then the whole square is
-soft, so that the plan gets away). Few binaries: a group gets none when one side provably holds
-at all its points over the boxes where they can be, and a side that cannot hold there gets none.
+soft, so that the plan gets away). A robot inside the hard square but not in contact (off on
+a diagonal: the square is larger than the disc there) gets a fifth side instead, across the
+line between the two: the plan keeps at least ``r_i + r_j`` along it (`build_separation`).
+Few binaries: a group gets none when one side provably holds at all its points over the
+boxes where they can be, and a side that cannot hold there gets none.
 
 Everything here is numpy; `model.TripModel.solve` appends the rows to the trip's HiGHS model
 for one solve and removes them again.
@@ -63,6 +66,8 @@ _TOL = 1e-9
 SPAN_S = 0.5
 #: The four sides of a square: (axis, sign) for ``sign * p[axis] >= sign * c[axis] + d``.
 SIDES: tuple[tuple[int, int], ...] = ((0, 1), (0, -1), (1, 1), (1, -1))
+#: The side index of the fifth side, across the line between two robots (`build_separation`).
+ACROSS = len(SIDES)
 
 
 @dataclass(frozen=True)
@@ -79,6 +84,9 @@ class Obstacle:
     centres: np.ndarray
     half: np.ndarray
     margin: float
+    #: ``(N+1, 2)``: half-widths of the box the other robot's centre may be in (zero for a
+    #: robot predicted at one point); `half` is this plus ``r_i + r_j + margin``.
+    core: np.ndarray | None = None
 
     @classmethod
     def square(cls, robot: str, centres: np.ndarray, half: float, margin: float) -> Obstacle:
@@ -91,7 +99,12 @@ class Obstacle:
     ) -> Obstacle:
         """The box holding the squares of half-width `half` round both `one[k]` and
         `other[k]`, at each step k (a robot that either carries on or stops)."""
-        return cls(robot, (one + other) / 2, half + np.abs(one - other) / 2, margin)
+        core = np.abs(one - other) / 2
+        return cls(robot, (one + other) / 2, half + core, margin, core)
+
+    def spread(self) -> np.ndarray:
+        """`core`, zeros when not given."""
+        return np.zeros_like(self.half) if self.core is None else self.core
 
 
 def predict(neighbour: Neighbour, t0: float, dt: float, steps: int) -> np.ndarray:
@@ -146,17 +159,24 @@ class Separation:
     group_last: np.ndarray
     #: Per group: the slack's upper bound (the margin; all of d for a robot already too close).
     group_slack: np.ndarray
-    #: Per binary: its group and side (index into `SIDES`).
+    #: Per binary: its group and side (index into `SIDES`, or `ACROSS`).
     binary_group: np.ndarray
     binary_side: np.ndarray
-    #: Per side row: the point ``2 e + axis``, the sign, its binary, its M and its lower bound.
+    #: Per side row: the point ``2 e + axis`` and its coefficient (the sign; a component of
+    #: the normal on an `ACROSS` row, whose other point ``2 e + 1`` and coefficient are in
+    #: `row_point2` and `row_coef2`, -1 and 0 on other rows), its binary, its M and its
+    #: lower bound.
     row_point: np.ndarray
-    row_sign: np.ndarray
+    row_coef: np.ndarray
+    row_point2: np.ndarray
+    row_coef2: np.ndarray
     row_binary: np.ndarray
     row_big_m: np.ndarray
     row_lo: np.ndarray
     #: A step at which no side can hold: the plan cannot keep clear (the problem is infeasible).
     infeasible: bool
+    #: Per obstacle: the unit normal of its `ACROSS` side, zero when it has none.
+    normals: np.ndarray
 
     @property
     def binaries(self) -> int:
@@ -181,35 +201,68 @@ class Separation:
         pick = np.full(self.groups, -1)
         for b in range(self.binaries):
             g = int(self.binary_group[b])
-            ob = self.obstacles[int(self.group_obstacle[g])]
+            j = int(self.group_obstacle[g])
             ends = range(int(self.group_first[g]), int(self.group_last[g]) + 1)
-            axis, sign = SIDES[int(self.binary_side[b])]
-            gap = min(sign * (p[e, axis] - ob.centres[e, axis]) - ob.half[e, axis] for e in ends)
+            gap = min(self._clearance(j, int(self.binary_side[b]), e, p[e]) for e in ends)
             if gap > best[g]:
                 best[g], pick[g] = gap, b
         for g in range(self.groups):
             if pick[g] >= 0:
                 values[pick[g]] = 1.0
-                ob = self.obstacles[int(self.group_obstacle[g])]
                 values[self.binaries + g] = min(max(-best[g], 0.0), self.group_slack[g])
         return values
 
+    def _clearance(self, j: int, side: int, e: int, q: np.ndarray) -> float:
+        """How far point `q` (at point e) is beyond `side` of obstacle j's box, its margin
+        included (negative inside)."""
+        ob = self.obstacles[j]
+        if side == ACROSS:
+            n, core = self.normals[j], ob.spread()[e]
+            reach = float(ob.half[e, 0] - core[0] + np.abs(n) @ core)
+            return float(n @ (q - ob.centres[e])) - reach
+        axis, sign = SIDES[side]
+        return float(sign * (q[axis] - ob.centres[e, axis]) - ob.half[e, axis])
+
     def bounds(
-        self, values: np.ndarray, p_lo: np.ndarray, p_hi: np.ndarray, first: int = 2
+        self,
+        values: np.ndarray,
+        p_lo: np.ndarray,
+        p_hi: np.ndarray,
+        p: np.ndarray,
+        first: int = 2,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """`p_lo`, `p_hi` narrowed to the sides a solution `values` chose, from step `first` on.
+        """`p_lo`, `p_hi` narrowed to the sides a solution `values` (plan `p`) chose, from
+        step `first` on.
 
         With the sides fixed, each is a bound on one coordinate (``s p >= s c + d - slack``):
-        the quadratic refinement keeps to them through its column bounds.
+        the quadratic refinement keeps to them through its column bounds. An `ACROSS` side
+        is no bound on one coordinate: each point keeps within half its surplus over the side
+        of where `p` has it, along each axis, which keeps the side.
         """
         lo, hi = p_lo.copy(), p_hi.copy()
         on = np.flatnonzero(values[: self.binaries] > 0.5)
         for b in on:
             g = int(self.binary_group[b])
-            ob = self.obstacles[int(self.group_obstacle[g])]
+            j = int(self.group_obstacle[g])
+            ob = self.obstacles[j]
             ends = range(int(self.group_first[g]), int(self.group_last[g]) + 1)
-            axis, sign = SIDES[int(self.binary_side[b])]
             slack = float(values[self.binaries + g])
+            if int(self.binary_side[b]) == ACROSS:
+                n = self.normals[j]
+                for e in ends:
+                    if e < first:
+                        continue
+                    surplus = max(self._clearance(j, ACROSS, e, p[e]) + slack, 0.0)
+                    for axis in (0, 1):
+                        if n[axis] == 0.0:
+                            continue
+                        give = surplus / (2.0 * abs(n[axis]))
+                        if n[axis] > 0:
+                            lo[e, axis] = min(max(lo[e, axis], p[e, axis] - give), hi[e, axis])
+                        else:
+                            hi[e, axis] = max(min(hi[e, axis], p[e, axis] + give), lo[e, axis])
+                continue
+            axis, sign = SIDES[int(self.binary_side[b])]
             for e in ends:
                 if e < first:
                     continue
@@ -246,6 +299,8 @@ def build_separation(
     p_lo: np.ndarray,
     p_hi: np.ndarray,
     spans: Sequence[tuple[int, int]] | None = None,
+    *,
+    across: bool = True,
 ) -> Separation:
     """The rows keeping the plan clear of `obstacles` from point 1 to point N.
 
@@ -253,8 +308,16 @@ def build_separation(
     decide which groups and sides need a binary at all. `spans` are the groups of points that
     keep to one side (default: each step k, points k and k+1, for k = 1..N-1). p[1] is fixed
     by the measured state (lower = upper bound): a side it breaks cannot be chosen for the
-    first group, unless it breaks the hard part of all four (the robots are already too close):
-    then that robot's whole square is soft, so the plan gets away from it as fast as it can.
+    first group, unless it breaks the hard part of all four. Then, if the robots are in
+    contact, that robot's whole square is soft, so the plan gets away from it as fast as it
+    can; if not (p[1] is off on a diagonal, where the square reaches beyond the disc), the
+    robot gets an `ACROSS` side, the half-plane through p[1] across the line from the box its
+    centre may be in: any plan point at least ``r_i + r_j`` beyond it is out of contact, and
+    p[1] is. (Softening the whole square there let a plan into contact: 80 MPC robots on the
+    fleet scenario, 0.798 m apart, radii 0.4.) Without `across`, such a robot's square is
+    soft too: one side across is stricter than the disc (a robot sliding round the other
+    cannot keep to it), so a solve it makes infeasible is tried again so
+    (`crowd.solve_clear`) rather than braking, which may run into the other robot.
     """
     n_steps = len(p_lo) - 1
     g_ob: list[int] = []
@@ -263,28 +326,39 @@ def build_separation(
     g_soft: list[float] = []
     b_group: list[int] = []
     b_side: list[int] = []
-    rows: list[tuple[int, int, int, float, float]] = []
+    rows: list[tuple[int, float, int, float, int, float, float]] = []
+    normals = np.zeros((len(obstacles), 2))
     infeasible = False
     fixed = n_steps >= 1 and bool(np.all(p_lo[1] == p_hi[1]))
     for j, ob in enumerate(obstacles):
         c, h = ob.centres, ob.half
-        # Per point e and side s: the least and greatest s * p[axis], and the threshold.
-        low = np.empty((n_steps + 1, 4))
-        high = np.empty((n_steps + 1, 4))
-        thr = np.empty((n_steps + 1, 4))
+        # Per point e and side s: the least and greatest value of the side's left-hand side
+        # (s * p[axis], or n . p across), and the threshold.
+        low = np.empty((n_steps + 1, len(SIDES) + 1))
+        high = np.empty_like(low)
+        thr = np.full_like(low, np.inf)
         for s, (axis, sign) in enumerate(SIDES):
             if sign > 0:
                 low[:, s], high[:, s] = p_lo[:, axis], p_hi[:, axis]
             else:
                 low[:, s], high[:, s] = -p_hi[:, axis], -p_lo[:, axis]
             thr[:, s] = sign * c[:, axis] + h[:, axis]
-        holds = low >= thr - _TOL  # the side holds wherever p[e] can be
+        low[:, ACROSS] = high[:, ACROSS] = -np.inf  # (no such side unless set below)
         soft = ob.margin
         if fixed and np.all(np.abs(p_lo[1] - c[1]) < h[1] - ob.margin - _TOL):
-            # Already closer than contact (in the square's measure) at the fixed p[1]: no plan
-            # keeps the hard part, so all of the square is soft: the plan gets out as fast
-            # as it can instead of giving up (an infeasible solve only brakes).
-            soft = float(np.max(h))
+            n = _across(p_lo[1], ob) if across else None
+            if n is None:
+                # In contact at the fixed p[1]: no plan keeps the hard part, so all of the
+                # square is soft: the plan gets out as fast as it can instead of giving up
+                # (an infeasible solve only brakes).
+                soft = float(np.max(h))
+            else:
+                normals[j] = n
+                core = ob.spread()
+                low[:, ACROSS] = np.minimum(p_lo * n, p_hi * n).sum(axis=1)
+                high[:, ACROSS] = np.maximum(p_lo * n, p_hi * n).sum(axis=1)
+                thr[:, ACROSS] = c @ n + h[:, 0] - core[:, 0] + core @ np.abs(n)
+        holds = low >= thr - _TOL  # the side holds wherever p[e] can be
         possible = high >= thr - soft - _TOL  # the side can hold (its hard part)
         if spans is None:
             spans = [(k, k + 1) for k in range(1, n_steps)]
@@ -305,13 +379,19 @@ def build_separation(
                 b = len(b_group)
                 b_group.append(g)
                 b_side.append(int(s))
-                axis, sign = SIDES[int(s)]
                 for e in ends:
                     if holds[e, s]:
                         continue
                     big_m = float(thr[e, s] - low[e, s])
-                    rows.append((2 * e + axis, sign, b, big_m, float(thr[e, s]) - big_m))
-    arr = np.array(rows, dtype=float).reshape(-1, 5)
+                    if s == ACROSS:
+                        first_term = (2 * e, float(normals[j, 0]))
+                        second_term = (2 * e + 1, float(normals[j, 1]))
+                    else:
+                        axis, sign = SIDES[int(s)]
+                        first_term, second_term = (2 * e + axis, float(sign)), (-1, 0.0)
+                    lo = float(thr[e, s]) - big_m
+                    rows.append((*first_term, b, big_m, *second_term, lo))
+    arr = np.array(rows, dtype=float).reshape(-1, 7)
     return Separation(
         obstacles=tuple(obstacles),
         group_obstacle=np.array(g_ob, dtype=np.int64),
@@ -321,9 +401,26 @@ def build_separation(
         binary_group=np.array(b_group, dtype=np.int64),
         binary_side=np.array(b_side, dtype=np.int64),
         row_point=arr[:, 0].astype(np.int64),
-        row_sign=arr[:, 1],
+        row_coef=arr[:, 1],
+        row_point2=arr[:, 4].astype(np.int64),
+        row_coef2=arr[:, 5],
         row_binary=arr[:, 2].astype(np.int64),
         row_big_m=arr[:, 3],
-        row_lo=arr[:, 4],
+        row_lo=arr[:, 6],
         infeasible=infeasible,
+        normals=normals,
     )
+
+
+def _across(q: np.ndarray, ob: Obstacle) -> np.ndarray | None:
+    """The unit normal, pointing to `q` (p[1]), of the `ACROSS` side of `ob` at point 1 (the
+    other robot's centre may be anywhere in its core box; contact is a distance, not a box):
+    None if `q` is in contact, closer than ``r_i + r_j`` to that box."""
+    core = ob.spread()[1]
+    contact = float(ob.half[1, 0] - ob.margin - core[0])
+    off = q - ob.centres[1]
+    out = np.maximum(np.abs(off) - core, 0.0)
+    gap = float(np.hypot(out[0], out[1]))
+    if gap < contact - _TOL or gap == 0.0:
+        return None
+    return np.sign(off) * out / gap
