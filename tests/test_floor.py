@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from shapely.geometry import MultiPolygon, Polygon, box
 
 from fleet.engine.safety import check_steps
-from fleet.floor import compile_floor, convex_pieces, load_floor, parse_spec
+from fleet.floor import Floor, compile_floor, convex_pieces, load_floor, parse_spec
 from fleet.floor.build import free_space, speed_cells
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
@@ -352,3 +352,42 @@ def test_v_max_at_a_shared_boundary_takes_each_axis_lowest():
     assert floor.v_max_at(5, 5) == (0.4, 1.0)  # on the zone's edge: both sides apply
     assert floor.v_max_at(8, 5) == (1.0, 1.0)
     assert floor.v_max_at(30, 5) is None
+
+
+def test_regions_meeting_at_a_t_junction_are_adjacent():
+    # Two pieces of the detour of fuzz case s21-0819: the upper one's edge runs 1.42 m along
+    # the lower one's 1.95 m edge from their common corner, and ends on it (exactly, in
+    # decimal; off it by rounding in binary). Their boundaries' exact intersection is a point.
+    upper = Polygon(
+        [(-20.382403, 55.139899), (-20.6963, 54.826002), (-20.898278, 54.338384),
+         (-19.894784, 55.341878)]
+    )  # fmt: skip
+    lower = Polygon(
+        [(-19.016381, 55.992048), (-19.521578, 55.715084), (-20.898278, 54.338384),
+         (-22.151266, 48.196531)]
+    )  # fmt: skip
+    assert upper.boundary.intersection(lower.boundary).length == 0.0
+    floor = Floor.from_regions(spec_of(), [(upper, (1.0, 1.0), None), (lower, (1.0, 1.0), None)])
+    assert floor.graph.has_edge(0, 1)
+    portal = floor.graph.edges[0, 1]["portal"]
+    assert portal.length == pytest.approx(
+        math.dist((-20.898278, 54.338384), (-19.894784, 55.341878))
+    )
+
+
+def test_a_detour_round_two_robots_at_rest_keeps_the_floor_connected():
+    # Fuzz case s21-0819 (tests/path_cases/README.md): r02 at rest with r01 and r03 beside it;
+    # the detour round them must leave r02 a way home across the open floor.
+    from fleet.paths import PathPlanner
+    from fleet_plugins.follower.yielding import Detour
+
+    base = load_floor(Path(__file__).parent / "path_cases" / "detour_round_two_robots.toml")
+    blockers = [("r01", -20.6463, 56.4666, 0.479), ("r03", -22.023000576850887, 55.0899, 0.479)]
+    start, home = (-20.32971080597771, 55.08477118148952), (-9.4548, 47.1595)
+    detour = Detour.build(base, blockers, 0.479, 0.3687005768508881, start, 0.5)
+    assert detour.floor is not None
+    assert nx.number_connected_components(detour.floor.graph) == nx.number_connected_components(
+        base.graph
+    )
+    path = PathPlanner(detour.floor, v_max=0.78, a_max=0.5).path(start, home)
+    assert path.travel_time > 0

@@ -24,15 +24,12 @@ from shapely.geometry import MultiPolygon, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from fleet.errors import MapError
-from fleet.floor.compiled import Floor
+from fleet.floor.compiled import GRID, Floor
 from fleet.floor.decompose import convex_pieces, polygons_of
 from fleet.floor.mapfile import grow, load_spec
 from fleet.floor.spec import FloorSpec, SpeedZone
 
 __all__ = ["compile_floor", "load_floor", "slow_on_rough", "free_space", "speed_cells", "GRID"]
-
-#: Grid (m) that all set operations snap to.
-GRID = 1e-6
 
 _cache: dict[tuple[str, int, int], Floor] = {}
 

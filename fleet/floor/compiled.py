@@ -19,10 +19,12 @@ from shapely.strtree import STRtree
 
 from fleet.floor.spec import FloorSpec, Station
 
-__all__ = ["Region", "Floor", "halfspaces", "BOUNDARY_BAND"]
+__all__ = ["Region", "Floor", "halfspaces", "BOUNDARY_BAND", "GRID"]
 
 #: Geometric tolerance (m) for membership and shared-edge tests.
 TOLERANCE = 1e-7
+#: Grid (m) that the floor compiler's set operations snap to.
+GRID = 1e-6
 #: Distance (m) from a region's boundary within which a point counts as on it when deciding
 #: which zone speed limits bind: the safety checker's depth (`fleet.engine.safety`) and the
 #: band in which a planned leg is bound by the region beside it (`fleet.paths.limits`). A leg
@@ -239,6 +241,12 @@ class Floor:
         return f"<Floor {self.name!r} from {self.source}: {len(self.regions)} regions>"
 
 
+def _shared_boundary(a: Polygon, b: Polygon, grid: float = 0.0):
+    """The boundary two polygons share (with `grid`, computed on that grid), merged."""
+    shared = shapely.intersection(a.boundary, b.boundary, grid_size=grid or None)
+    return shapely.line_merge(shared) if shared.geom_type == "MultiLineString" else shared
+
+
 def _adjacency(regions: Sequence[Region], tree: STRtree) -> nx.Graph:
     """Region adjacency: an edge where two regions share a boundary piece of positive length.
 
@@ -252,8 +260,13 @@ def _adjacency(regions: Sequence[Region], tree: STRtree) -> nx.Graph:
             j = int(j)
             if j <= r.index:
                 continue
-            shared = r.polygon.boundary.intersection(regions[j].polygon.boundary)
-            shared = shapely.line_merge(shared) if shared.geom_type == "MultiLineString" else shared
+            shared = _shared_boundary(r.polygon, regions[j].polygon)
+            if shared.length <= TOLERANCE:
+                # A vertex of one region on an edge of the other (a T-junction) lies off that
+                # edge by rounding, and the exact intersection can be a point: snap-rounded on
+                # the floor's grid, the shared piece is found (a detour carved round two
+                # robots was cut in two: fuzz s21-0819).
+                shared = _shared_boundary(r.polygon, regions[j].polygon, GRID)
             if shared.length <= TOLERANCE:
                 continue
             if shared.geom_type != "LineString":
