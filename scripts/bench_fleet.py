@@ -33,7 +33,7 @@ Nothing is asserted: the figures go in notes and the README.
         [--lockstep strict pipelined] [--rate 4800] [--skip-baseline]
     python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200]
     python scripts/bench_fleet.py --sweep 10 20 40 80 [--duration 120] [--per-robot-rate 120]
-        [--out runs/sweep] [--options reuse_ticks=4]
+        [--out runs/sweep] [--options reuse_ticks=4] [--seed 2]
 """
 
 from __future__ import annotations
@@ -237,7 +237,7 @@ def sweep(
     print(
         f"MPC fleet sweep on {base.map.name}: {duration:g} simulated s, "
         f"{per_robot_rate:g} jobs per robot-hour, sensing {base.sensing_radius_m:g} m, "
-        f"deadlock after {base.deadlock_after_s} s"
+        f"deadlock after {base.deadlock_after_s} s, seed {base.seed}"
     )
     print(
         f"{'robots':>6} {'contacts':>8} {'closest m':>9} {'pair, t':>16} {'fallbacks':>9} "
@@ -318,9 +318,16 @@ def main() -> None:
     ap.add_argument(
         "--options", nargs="*", default=[], metavar="K=V", help="sweep: MPC options (TOML values)"
     )
+    ap.add_argument(
+        "--seed", type=int, default=None, help="the scenario's seed (default: the file's)"
+    )
     args = ap.parse_args()
 
     base = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
+    if args.seed is not None:
+        # One sweep is one sample of a chaotic system: a change's effect on fallbacks and
+        # deadlocks is judged over seeds.
+        base = replace(base, seed=args.seed)
     if args.rate is not None:
         base = replace(base, jobs=replace(base.jobs, rate_per_h=args.rate))
     if args.sweep:
