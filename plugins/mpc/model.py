@@ -338,7 +338,7 @@ class TripModel:
         values = np.column_stack([sep.row_coef, -sep.row_big_m, np.ones(n_side), sep.row_coef2])
         used = np.column_stack([np.ones((n_side, 3), dtype=bool), two])
         side_idx, side_val = entries[used], values[used]  # (row-major: row by row)
-        side_starts = np.concatenate([[0], np.cumsum(3 + two)[:-1]])
+        side_starts = np.concatenate([[0], np.cumsum(3 + two)])[:n_side]
         # Group rows: one of the group's sides holds.
         order = np.argsort(sep.binary_group, kind="stable")
         sizes = np.bincount(sep.binary_group, minlength=n_grp)
