@@ -125,6 +125,19 @@ def test_a_plan_that_keeps_a_robot_at_rest_off_its_goal_with_nobody_about_stays_
     assert not stays_put(at(28.0, 49.0, neighbours=(other,)), here, goal, RADIUS)  # waits
 
 
+def test_a_plan_that_sets_off_only_later_with_nobody_about_stays_put_too() -> None:
+    # Fuzz s91-0759: 3.3 m off its reference, each solve's optimal plan kept the robot at rest
+    # for 4 steps or more and moved only later; followed for 4 ticks and solved again alike,
+    # it never set off (the last 90 s of the run). Judged over this tick (the first input).
+    goal = (10.96, -9.72)
+    later = np.array([[2.93, -13.9]] * (HORIZON + 1))
+    later[5:, 1] += 0.05 * np.arange(1, HORIZON - 3)
+    assert stays_put(at(2.93, -13.9), later, goal, RADIUS)
+    now = np.array([[2.93, -13.9]] * (HORIZON + 1))
+    now[2:, 1] += 0.01 * np.arange(1, HORIZON)  # sets off this tick: p[2] moves
+    assert not stays_put(at(2.93, -13.9), now, goal, RADIUS)
+
+
 def test_a_robot_held_in_a_door_solves_rather_than_brake_out_of_the_free_space(tmp_path):
     # Fuzz case s31-0665 (run cut to 40 s): r01 drove through a door between two walls on a
     # plan that turned there when r02, which it outranks, came close (`must_hold`: follow the

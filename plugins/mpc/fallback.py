@@ -154,18 +154,21 @@ def free_brake(
 
 def stays_put(obs: Observation, p: np.ndarray, goal: tuple[float, float], radius: float) -> bool:
     """Whether plan `p` (``(N+1, 2)``) keeps the robot, at rest more than `radius` from its
-    `goal` with no robot in sight and no print cap holding it, where it is. Nothing changes
-    such a tick's solve, so it would stay for good (fuzz s41-0086: a robot pushed off its
-    reference to the edge of a region from which the regions round its reference led nowhere
-    within the horizon stood still, every solve optimal, for the last 90 s): the caller plans
-    a new trip from where the robot is."""
+    `goal` with no robot in sight and no print cap holding it, where it is over this tick
+    (its first input is nil: ``p[0] = p[1] = p[2]``). Nothing changes such a tick's solve, so
+    it would stay for good (fuzz s41-0086: a robot pushed off its reference to the edge of a
+    region from which the regions round its reference led nowhere within the horizon stood
+    still, every solve optimal, for the last 90 s): the caller plans a new trip from where the
+    robot is. A plan that sets off only later is such a wait too: followed for a few ticks
+    and solved again alike, it never set off (fuzz s91-0759: 3.3 m off its reference, the
+    last 90 s of the run, each plan waiting 4 steps or more)."""
     if obs.neighbours or max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
         return False
     if obs.speed_cap is not None and obs.speed_cap <= 0.0:
         return False
     if math.hypot(goal[0] - obs.x, goal[1] - obs.y) <= radius:
         return False
-    return bool(np.all(np.abs(np.asarray(p) - np.array([obs.x, obs.y])) <= STILL_M))
+    return bool(np.all(np.abs(np.asarray(p)[:3] - np.array([obs.x, obs.y])) <= STILL_M))
 
 
 def braking_path(
