@@ -9,7 +9,8 @@ for a moving lower robot that yields, and planned to stop where r37 stood (0 m f
 boxed in, could not keep clear of that plan: infeasible, a fallback (it brakes and shows a plan
 at rest), r33 then kept clear of it, r37 crept again, and so on. A robot cannot give way that
 cannot get out of the way: now a higher robot keeps clear of a lower one whose plan and braking
-path stay within `neighbours.SETTLING_M` of where it is (`neighbours.settling`).
+path stay within `neighbours.SETTLING_M` of where it is and whose plan ends within
+`neighbours.QUEUE_M` of the higher one's goal (`neighbours.settling`).
 
 The situation below is that one made small: a station with robots parked round it and a lower
 robot creeping in the last free spot next to it.
@@ -26,7 +27,7 @@ from fleet.floor import Floor, FloorSpec
 from fleet.paths import PathPlanner
 from fleet.plugins import ControllerContext, ControlStatus, Neighbour, Observation, RobotSpec
 from fleet_plugins.mpc.controller import MPCController
-from fleet_plugins.mpc.neighbours import SETTLING_M, closest_approach, settling
+from fleet_plugins.mpc.neighbours import QUEUE_M, SETTLING_M, closest_approach, settling
 from fleet_plugins.mpc.separation import at_rest, predict
 
 SPEC = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
@@ -89,13 +90,15 @@ def test_a_robot_creeping_in_a_queue_is_settling_and_one_driving_on_is_not() -> 
     centres = predict(n, T, SPEC.period, N)
     assert not at_rest(centres)  # it moves: 3 cm
     stop = np.tile(LOW, (N + 1, 1))
-    assert settling(n, centres, stop)
+    assert settling(n, centres, stop, STATION)
     # A plan that goes on farther than SETTLING_M is no settling, nor a braking path that does.
     x, y = LOW
     on = SETTLING_M + 0.5
     farther = Neighbour("r37", x, y, 0.02, 0.0, 0.4, 44, ((T, x, y), (T + 3.0, x + on, y)))
-    assert not settling(farther, predict(farther, T, SPEC.period, N), stop)
-    assert not settling(n, centres, stop + [0.0, on])
+    assert not settling(farther, predict(farther, T, SPEC.period, N), stop, STATION)
+    assert not settling(n, centres, stop + [0.0, on], STATION)
+    # Nor one that stops farther than QUEUE_M from this robot's goal (it is not in its queue).
+    assert not settling(n, centres, stop, (LOW[0] + QUEUE_M + 0.1, LOW[1]))
 
 
 def test_a_higher_robot_does_not_plan_into_a_lower_one_creeping_next_to_a_full_station() -> None:
@@ -125,3 +128,20 @@ def test_the_lower_robot_in_the_queue_solves_against_the_higher_ones_plan() -> N
     cmd = controller("r37").compute(obs)
     assert cmd.status is ControlStatus.OK
     assert cmd.solve is not None and cmd.solve.outcome.usable
+
+
+def test_a_higher_robot_keeps_clear_of_a_lower_one_arriving_in_the_last_free_spot() -> None:
+    # The same, the lower robot still arriving (0.1 m/s, 0.4 m from its stop): not close, and
+    # it could not get out of the way either.
+    x, y = LOW[0] - 0.4, LOW[1]
+    plan = ((T, x, y), (T + 4.0, *LOW), (T + N * SPEC.period, *LOW))
+    arriving = Neighbour("r37", x, y, 0.1, 0.0, 0.4, 44, plan)
+    others = (*(parked(r, *xy) for r, xy in PARKED.items()), arriving)
+    obs = Observation(
+        "r33", 400, T, 7.0, 7.0, 0.7, -0.7, goal=STATION, job="j", neighbours=others,
+        priority=48,
+    )  # fmt: skip
+    cmd = controller("r33").compute(obs)
+    assert cmd.status is ControlStatus.OK
+    low = predict(arriving, T, SPEC.period, N)
+    assert closest_approach(np.array(cmd.plan)[:, 1:], low) >= 2 * SPEC.radius

@@ -48,6 +48,7 @@ __all__ = [
     "shows_start",
     "settling",
     "SETTLING_M",
+    "QUEUE_M",
 ]
 
 
@@ -82,7 +83,7 @@ def robots_to_avoid(
                 respect_priority
                 and outranks(obs, n)
                 and not shows_start(n)
-                and not settling(n, centres, stop)
+                and not settling(n, centres, stop, obs.goal)
                 and not close(obs, n, spec, half)
             ):
                 continue  # it yields to this robot (braking if it must); this one keeps its course
@@ -95,22 +96,30 @@ def robots_to_avoid(
 
 
 #: A lower robot whose plan and braking path both stay within this (m) of where it is can get
-#: no farther out of the way: a higher robot keeps clear of it (`settling`).
+#: no farther out of the way: a higher robot keeps clear of it near its own goal (`settling`).
 SETTLING_M = 1.0
+#: How near (m) this robot's goal a lower robot's plan must end to count as settling there.
+QUEUE_M = 3.0
 
 
-def settling(n: Neighbour, centres: np.ndarray, stop: np.ndarray) -> bool:
-    """Whether moving robot `n` is about to stop where it is: its predicted `centres` and its
-    braking path `stop` (``(N+1, 2)`` each) stay within `SETTLING_M` of it, along both axes.
+def settling(
+    n: Neighbour, centres: np.ndarray, stop: np.ndarray, goal: tuple[float, float] | None
+) -> bool:
+    """Whether moving robot `n` is settling into a queue at this robot's `goal`: its predicted
+    `centres` and its braking path `stop` (``(N+1, 2)`` each) stay within `SETTLING_M` of it,
+    along both axes, and its plan ends within `QUEUE_M` of the goal.
 
     A higher robot keeps its course past a moving lower one, which yields; but one settling
     into a queue at a station, boxed in by the robots parked there, cannot: the higher one,
     bound for the same station, planned to stop where the lower one stood or was stopping (the
-    nearest free spot), and the lower one's solves were infeasible until it stood still. 62 of
-    72 fallbacks of 40 MPC robots on the fleet scenario came so (docs/mpc.md, "Queues")."""
+    nearest free spot), and the lower one's solves were infeasible until it stood still: most
+    of the fallbacks of 40 MPC robots on the fleet scenario (docs/mpc.md, "Queues")."""
+    if goal is None:
+        return False
     here = np.array([n.x, n.y])
     reach = max(np.max(np.abs(centres - here)), np.max(np.abs(stop - here)))
-    return bool(reach <= SETTLING_M)
+    end = centres[-1]
+    return bool(reach <= SETTLING_M and math.hypot(end[0] - goal[0], end[1] - goal[1]) <= QUEUE_M)
 
 
 def shows_start(n: Neighbour) -> bool:
