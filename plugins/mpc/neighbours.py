@@ -3,8 +3,9 @@
 A robot needs keeping clear of when its predicted square can come within reach of the plan
 (the reachable boxes, narrowed to the regions each step may use) and, with
 ``respect_priority``, it outranks this one wherever it is, and only when parked for the whole
-horizon or close (`close`) if this one outranks it. The higher one thus keeps its course unless
-the lower one is close (when both yielded at any distance, both swerved alike and met again:
+horizon, close (`close`), or settling into a queue at this one's goal (`settling`: it cannot
+get out of the way) if this one outranks it. The higher one thus keeps its course unless the
+lower one is close (when both yielded at any distance, both swerved alike and met again:
 measured head-on). A moving robot may carry on with its plan or drop it at its next tick (to
 brake when its solve fails, or to re-plan, as this one does at the same time), so the plan
 keeps clear of the box round both its plan and its braking path; only a robot parked for the
