@@ -122,6 +122,20 @@ def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
     assert findings == [], "\n".join(map(str, findings))
 
 
+def test_a_crowd_at_a_pocket_mouth_lets_the_robot_parked_in_it_out(tmp_path: Path) -> None:
+    # Fuzz seed 91 (s91-0106, run cut from 240 to 280 s): r03, idle (no return home), parks on
+    # st2, a station in a pocket open only to the north; r05, with a job via st2, stands at
+    # the mouth, r04, r01 and r02 (jobs via st2 too) crowd behind it. r03's only way out
+    # passes r05, and r05 had no spot off that way with the others round it: nobody moved
+    # from 170 s to 260 s (r05's job delivered at 361 s). Now the idle and waiting
+    # robots in the way step aside with r05: r05 backs off at 170 s, delivers at 262.5 s.
+    findings = judged("crowd_at_a_pocket", tmp_path)
+    failing = [f for f in findings if f.kind not in fz.INFO_KINDS]
+    assert failing == [], "\n".join(map(str, failing))
+    # r05's job j00001 (via st2) is delivered within the run, not just after it.
+    assert not [f for f in findings if "j00001" in f.detail], "\n".join(map(str, findings))
+
+
 def test_a_robot_shut_in_a_dead_end_is_let_out() -> None:
     # r01 prints at the end of a dead-end corridor; r02, with a job to the same station, waits
     # behind it in the corridor. Once r01 delivers it has no way home and no spot off r02's

@@ -14,6 +14,13 @@ the stuck robot. It holds the spot until the robot it made way for has a new goa
 `HOLD_FACTOR` deadlock periods at most; then it goes on with its job, or home as idle robots
 do (or stays, without `return_home`). A job assigned or taken away meanwhile ends the wait.
 
+A robot with no spot off the stuck robot's route (shut in by the stuck robot itself) has the
+stuck robot back off its way instead (`MakeWay._back_off`). If that finds no spot either because
+other robots box the two in (a station in a pocket with a crowd at its mouth), the robots
+round it that may move for it (`yielders`: idle, already aside for either, or stuck on the way
+to the same goal) are passed over in the search, and those in the two ways step aside too,
+each off both ways; all of them or none.
+
 Spots are found deterministically (no random draws), so a run stays reproducible.
 """
 
@@ -36,7 +43,16 @@ from fleet.paths import PathPlanner
 from fleet.plugins import RobotSpec
 from fleet.plugins.robot import stray_between
 
-__all__ = ["MakeWay", "Aside", "AWAY_M", "HOLD_FACTOR", "PASSED_FACTOR"]
+__all__ = [
+    "MakeWay",
+    "Spots",
+    "Aside",
+    "AWAY_M",
+    "HOLD_FACTOR",
+    "PASSED_FACTOR",
+    "YIELD_M",
+    "yielders",
+]
 
 log = logging.getLogger("fleet.engine")
 
@@ -61,6 +77,9 @@ HOLD_FACTOR = 4.0
 #: m: a robot this much further off than the gap on an axis is out of reach for sure (the
 #: distances measured round by far less).
 _SURE_M = 1e-6
+#: Robots within this distance (m) of a stuck robot that cannot back off from a blocker may be
+#: sent aside for it to back off (`yielders`).
+YIELD_M = 2.0 * LOOK_AHEAD_M
 #: The robot made way for is past once it is this many times (both radii + `AWAY_M`) closer to
 #: its goal than when it stuck, and as far from the spot aside.
 PASSED_FACTOR = 2.0
@@ -91,7 +110,145 @@ def kept_gap(robot: RobotState, other: RobotState | None = None) -> float:
     return FOLLOWER_MARGIN_M + stray_between(spec, spec if other is None else other.spec)
 
 
-class MakeWay:
+class Spots:
+    """The geometry of making way: a stuck robot's route, a robot's way to a spot, and spots
+    off a route that a robot can reach without closing in on the others."""
+
+    def __init__(
+        self,
+        floor: Floor,
+        robots: Mapping[str, RobotState],
+        planner_for: Callable[[RobotSpec], PathPlanner],
+    ) -> None:
+        self.floor = floor
+        self.robots = robots
+        self.planner_for = planner_for
+
+    def _route(self, stuck: RobotState, goal: tuple[float, float]) -> shapely.Geometry:
+        """The stuck robot's route as the path layer plans it: to its goal and, with a job,
+        on through its later via stations to the destination (robots ignored)."""
+        points = [(stuck.x, stuck.y), goal]
+        rec = stuck.job
+        if rec is not None and stuck.goal == goal:
+            points += [(x, y) for _, x, y in rec.via[rec.leg + 1 :]]
+            if rec.leg < len(rec.via):
+                points.append((rec.job.x, rec.job.y))
+        planner = self.planner_for(stuck.spec)
+        lines = []
+        for a, b in zip(points, points[1:], strict=False):
+            if math.dist(a, b) < 1e-9:
+                continue
+            try:
+                lines.append(planner.path(a, b).waypoints)
+            except NoPathError:
+                lines.append((a, b))
+        if not lines:
+            return Point(goal)
+        return shapely.union_all([LineString(w) for w in lines] + [Point(goal)])
+
+    def _spot(
+        self,
+        robot: RobotState,
+        stuck: RobotState,
+        route: shapely.Geometry,
+        past: bool = False,
+        ignore: frozenset[str] = frozenset(),
+        avoid: Sequence[tuple[float, float, float]] = (),
+    ) -> tuple[float, float] | None:
+        """The nearest spot on `RINGS` round `robot` it can drive to that is off `route` and
+        clear of the other robots (but those in `ignore`) and of the spots (x, y, radius) in
+        `avoid`; on one ring, the one furthest from the route. With `past`, the way there may
+        pass close to `stuck` (which backs off first)."""
+        free = self.floor.free_space
+        # Off the route by more than the stuck robot keeps from a neighbour, or it could not pass.
+        kept = kept_gap(stuck, robot)
+        away = robot.spec.radius + stuck.spec.radius + max(AWAY_M, kept + OTHERS_M)
+        others = [
+            (o.x, o.y, robot.spec.radius + o.spec.radius + OTHERS_M)
+            for o in self.robots.values()
+            if o is not robot and o is not stuck and o.id not in ignore
+        ] + [(x, y, robot.spec.radius + r + OTHERS_M) for x, y, r in avoid]
+        # Each candidate is compared only with the robots within its gap on both axes (a
+        # hair more: `_SURE_M`); those further off on either axis cannot be within it.
+        table = np.array(others, dtype=float).reshape(-1, 3)
+        ox, oy, od = table[:, 0], table[:, 1], table[:, 2]
+        for ring in RINGS:
+            best, best_gap = None, -math.inf
+            for k in range(DIRECTIONS):
+                angle = 2.0 * math.pi * k / DIRECTIONS
+                x = robot.x + ring * away * math.cos(angle)
+                y = robot.y + ring * away * math.sin(angle)
+                spot = Point(x, y)
+                if not free.covers(spot):
+                    continue
+                gap = route.distance(spot)
+                if gap < away or gap <= best_gap:
+                    continue
+                close = np.flatnonzero(
+                    (np.abs(ox - x) < od + _SURE_M) & (np.abs(oy - y) < od + _SURE_M)
+                ).tolist()
+                if any(
+                    math.hypot(x - others[i][0], y - others[i][1]) < others[i][2] for i in close
+                ):
+                    continue
+                if not self._reachable(robot, stuck, (x, y), past, ignore):
+                    continue
+                best, best_gap = (x, y), gap
+            if best is not None:
+                return best
+        return None
+
+    def _way(self, robot: RobotState, spot: tuple[float, float]) -> LineString | None:
+        """`robot`'s way to `spot`: straight if the free space holds the segment, else along
+        the path layer's path; None without one."""
+        leg = LineString([(robot.x, robot.y), spot])
+        if self.floor.free_space.covers(leg):
+            return leg
+        try:
+            return LineString(self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints)
+        except NoPathError:
+            return None
+
+    def _reachable(
+        self,
+        robot: RobotState,
+        stuck: RobotState,
+        spot: tuple[float, float],
+        past: bool = False,
+        ignore: frozenset[str] = frozenset(),
+    ) -> bool:
+        """Whether `robot` can drive to `spot` (`_way`) without coming within reach of `stuck`
+        or any other robot but those in `ignore` (with `past`, it may pass `stuck`, which backs
+        off first)."""
+        leg = self._way(robot, spot)
+        if leg is None:
+            return False
+        # Robots stuck together may already stand closer than that: then never any closer.
+        # Besides the gap, a robot keeps clear of the step a neighbour may take unseen within
+        # one period (a_max*dt**2 per axis): a way that passes closer is one its controller
+        # refuses to drive, and the robot would hold where it stands for good.
+        # The same holds for every other robot on the way (a robot packed in among others at a
+        # depot was sent to a spot past one of them, 0.54 m from it, and never moved).
+        spec = robot.spec
+        x0, y0, x1, y1 = leg.bounds
+        for o in self.robots.values():
+            if o is robot or (past and o is stuck) or o.id in ignore:
+                continue
+            gap = max(OTHERS_M, kept_gap(robot, o))
+            # Robots further off the way's bounding box on some axis than the gap (and a hair:
+            # `_SURE_M`) cannot be within it: they are passed over without measuring.
+            far = spec.radius + o.spec.radius + gap + _SURE_M
+            if o.x < x0 - far or o.x > x1 + far or o.y < y0 - far or o.y > y1 + far:
+                continue
+            there = Point(o.x, o.y)
+            now = there.distance(Point(robot.x, robot.y))
+            reach = min(spec.radius + o.spec.radius + gap, now)
+            if leg.distance(there) < reach - 1e-6:
+                return False
+        return True
+
+
+class MakeWay(Spots):
     """Sends robots that block a stuck one for good to spots off its route, and back."""
 
     def __init__(
@@ -103,10 +260,8 @@ class MakeWay:
         deadlock_after_s: float | None,
         arrival_m: float = ARRIVED_M,
     ) -> None:
-        self.floor = floor
-        self.robots = robots
+        super().__init__(floor, robots, planner_for)
         self.recorder = recorder
-        self.planner_for = planner_for
         self.retry_s = deadlock_after_s or 0.0
         #: A robot made way for is at its goal this close (m): `ARRIVED_M`, or the run's own
         #: arrival tolerance if tighter (one that has not arrived still needs the way).
@@ -259,22 +414,74 @@ class MakeWay:
             return
         theirs = blocker.watched_goal
         parked = theirs is None or math.hypot(theirs[0] - blocker.x, theirs[1] - blocker.y) < 1e-9
-        if parked:
-            theirs = self._spot(blocker, stuck, route, past=True)
-            if theirs is None:
+        plan = self._back_off_plan(stuck, blocker, route, theirs, parked, frozenset())
+        crowd: list[tuple[RobotState, tuple[float, float]]] = []
+        if plan is None:
+            # Boxed in by robots that never leave by themselves, or wait behind `stuck` for
+            # the same place, they step aside too (fuzz s91-0106: an idle robot on a station
+            # in a pocket, the robot with a job at its mouth and three more behind it, all
+            # still for 130 s). Only if each of them in the ways has a spot off them.
+            near = yielders(self.robots, stuck, blocker, goal, t, self.retry_s)
+            if near:
+                plan = self._back_off_plan(stuck, blocker, route, theirs, parked, near)
+            if plan is None or (crowd := self._crowd_aside(stuck, blocker, plan, near)) is None:
                 return
-            way = self._way(blocker, theirs)
-        else:
-            way = self._route(blocker, theirs)
-        spot = self._spot(stuck, blocker, way)
-        if spot is None:
-            return
+        theirs, way, spot = plan
         self.recorder.stats["backed_off"] += 1
         job = "" if blocker.job is None else blocker.job.job.id
         self._send_aside(stuck, blocker, spot, theirs, job, t, nearby=parked)
+        for robot, aside in crowd:
+            self._send_aside(robot, blocker, aside, theirs, job, t)
         if parked:
             sid = "" if stuck.job is None else stuck.job.job.id
             self._send_aside(blocker, stuck, theirs, goal, sid, t)
+
+    def _back_off_plan(
+        self,
+        stuck: RobotState,
+        blocker: RobotState,
+        route: shapely.Geometry,
+        theirs: tuple[float, float] | None,
+        parked: bool,
+        ignore: frozenset[str],
+    ) -> tuple[tuple[float, float], shapely.Geometry, tuple[float, float]] | None:
+        """Where `blocker` goes (its own goal, or with `parked` a spot off `route`), its way
+        there and `stuck`'s spot off that way, the robots in `ignore` passed over; None if
+        there is no such spot."""
+        if parked:
+            theirs = self._spot(blocker, stuck, route, past=True, ignore=ignore)
+            if theirs is None:
+                return None
+            way = self._way(blocker, theirs)
+        else:
+            way = self._route(blocker, theirs)
+        spot = self._spot(stuck, blocker, way, ignore=ignore)
+        return None if spot is None or theirs is None else (theirs, way, spot)
+
+    def _crowd_aside(
+        self,
+        stuck: RobotState,
+        blocker: RobotState,
+        plan: tuple[tuple[float, float], shapely.Geometry, tuple[float, float]],
+        near: frozenset[str],
+    ) -> list[tuple[RobotState, tuple[float, float]]] | None:
+        """A spot for each robot in `near` within reach of the ways of the `plan` (`blocker`'s
+        and `stuck`'s), off both and clear of the spots they go to; None if one has none."""
+        theirs, way, spot = plan
+        ways = shapely.union_all([way, self._way(stuck, spot) or Point(spot)])
+        taken = [(*theirs, blocker.spec.radius), (*spot, stuck.spec.radius)]
+        out = []
+        for rid in sorted(near):
+            o = self.robots[rid]
+            gap = max(OTHERS_M, kept_gap(stuck, o), kept_gap(blocker, o))
+            if ways.distance(Point(o.x, o.y)) >= o.spec.radius + stuck.spec.radius + gap:
+                continue
+            aside = self._spot(o, stuck, ways, avoid=taken)
+            if aside is None:
+                return None
+            out.append((o, aside))
+            taken.append((*aside, o.spec.radius))
+        return out
 
     def in_the_way(
         self, stuck: RobotState, goal: tuple[float, float], t: float
@@ -361,116 +568,35 @@ class MakeWay:
         sx, sy = aside.spot
         return not (closer and math.hypot(sx - other.x, sy - other.y) > aside.passed_m)
 
-    def _route(self, stuck: RobotState, goal: tuple[float, float]) -> shapely.Geometry:
-        """The stuck robot's route as the path layer plans it: to its goal and, with a job,
-        on through its later via stations to the destination (robots ignored)."""
-        points = [(stuck.x, stuck.y), goal]
-        rec = stuck.job
-        if rec is not None and stuck.goal == goal:
-            points += [(x, y) for _, x, y in rec.via[rec.leg + 1 :]]
-            if rec.leg < len(rec.via):
-                points.append((rec.job.x, rec.job.y))
-        planner = self.planner_for(stuck.spec)
-        lines = []
-        for a, b in zip(points, points[1:], strict=False):
-            if math.dist(a, b) < 1e-9:
-                continue
-            try:
-                lines.append(planner.path(a, b).waypoints)
-            except NoPathError:
-                lines.append((a, b))
-        if not lines:
-            return Point(goal)
-        return shapely.union_all([LineString(w) for w in lines] + [Point(goal)])
 
-    def _spot(
-        self,
-        robot: RobotState,
-        stuck: RobotState,
-        route: shapely.Geometry,
-        past: bool = False,
-    ) -> tuple[float, float] | None:
-        """The nearest spot on `RINGS` round `robot` it can drive to that is off `route` and
-        clear of the other robots; on one ring, the one furthest from the route. With `past`,
-        the way there may pass close to `stuck` (which backs off first)."""
-        free = self.floor.free_space
-        # Off the route by more than the stuck robot keeps from a neighbour, or it could not pass.
-        kept = kept_gap(stuck, robot)
-        away = robot.spec.radius + stuck.spec.radius + max(AWAY_M, kept + OTHERS_M)
-        others = [
-            (o.x, o.y, robot.spec.radius + o.spec.radius + OTHERS_M)
-            for o in self.robots.values()
-            if o is not robot and o is not stuck
-        ]
-        # Each candidate is compared only with the robots within its gap on both axes (a
-        # hair more: `_SURE_M`); those further off on either axis cannot be within it.
-        table = np.array(others, dtype=float).reshape(-1, 3)
-        ox, oy, od = table[:, 0], table[:, 1], table[:, 2]
-        for ring in RINGS:
-            best, best_gap = None, -math.inf
-            for k in range(DIRECTIONS):
-                angle = 2.0 * math.pi * k / DIRECTIONS
-                x = robot.x + ring * away * math.cos(angle)
-                y = robot.y + ring * away * math.sin(angle)
-                spot = Point(x, y)
-                if not free.covers(spot):
-                    continue
-                gap = route.distance(spot)
-                if gap < away or gap <= best_gap:
-                    continue
-                close = np.flatnonzero(
-                    (np.abs(ox - x) < od + _SURE_M) & (np.abs(oy - y) < od + _SURE_M)
-                ).tolist()
-                if any(
-                    math.hypot(x - others[i][0], y - others[i][1]) < others[i][2] for i in close
-                ):
-                    continue
-                if not self._reachable(robot, stuck, (x, y), past):
-                    continue
-                best, best_gap = (x, y), gap
-            if best is not None:
-                return best
-        return None
-
-    def _way(self, robot: RobotState, spot: tuple[float, float]) -> LineString | None:
-        """`robot`'s way to `spot`: straight if the free space holds the segment, else along
-        the path layer's path; None without one."""
-        leg = LineString([(robot.x, robot.y), spot])
-        if self.floor.free_space.covers(leg):
-            return leg
-        try:
-            return LineString(self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints)
-        except NoPathError:
-            return None
-
-    def _reachable(
-        self, robot: RobotState, stuck: RobotState, spot: tuple[float, float], past: bool = False
-    ) -> bool:
-        """Whether `robot` can drive to `spot` (`_way`) without coming within reach of `stuck`
-        or any other robot (with `past`, it may pass `stuck`, which backs off first)."""
-        leg = self._way(robot, spot)
-        if leg is None:
-            return False
-        # Robots stuck together may already stand closer than that: then never any closer.
-        # Besides the gap, a robot keeps clear of the step a neighbour may take unseen within
-        # one period (a_max*dt**2 per axis): a way that passes closer is one its controller
-        # refuses to drive, and the robot would hold where it stands for good.
-        # The same holds for every other robot on the way (a robot packed in among others at a
-        # depot was sent to a spot past one of them, 0.54 m from it, and never moved).
-        spec = robot.spec
-        x0, y0, x1, y1 = leg.bounds
-        for o in self.robots.values():
-            if o is robot or (past and o is stuck):
-                continue
-            gap = max(OTHERS_M, kept_gap(robot, o))
-            # Robots further off the way's bounding box on some axis than the gap (and a hair:
-            # `_SURE_M`) cannot be within it: they are passed over without measuring.
-            far = spec.radius + o.spec.radius + gap + _SURE_M
-            if o.x < x0 - far or o.x > x1 + far or o.y < y0 - far or o.y > y1 + far:
-                continue
-            there = Point(o.x, o.y)
-            now = there.distance(Point(robot.x, robot.y))
-            reach = min(spec.radius + o.spec.radius + gap, now)
-            if leg.distance(there) < reach - 1e-6:
-                return False
-        return True
+def yielders(
+    robots: Mapping[str, RobotState],
+    stuck: RobotState,
+    blocker: RobotState,
+    goal: tuple[float, float],
+    t: float,
+    retry_s: float,
+) -> frozenset[str]:
+    """The robots within `YIELD_M` of `stuck` that may step aside for it to back off from
+    `blocker`: in service and idle (none leaves by itself), sent aside for either of them
+    already, or with a job and stuck for half a deadlock period on the way to `goal` too
+    (they wait behind `stuck` for the same place)."""
+    out = []
+    for o in robots.values():
+        if o is stuck or o is blocker or not o.in_service:
+            continue
+        if math.hypot(o.x - stuck.x, o.y - stuck.y) > YIELD_M:
+            continue
+        aside = o.aside
+        if (
+            (o.job is None and not o.queue and aside is None)
+            or (aside is not None and aside.made_way_for in (stuck.id, blocker.id))
+            or (
+                o.job is not None
+                and aside is None
+                and o.watched_goal == goal
+                and t - o.progress_s >= retry_s / 2 - 1e-9
+            )
+        ):
+            out.append(o.id)
+    return frozenset(out)
