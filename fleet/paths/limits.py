@@ -150,8 +150,8 @@ class SpeedLimits:
     def of_segments(self, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Vectorised `PathPlanner.speed_limit`: limits (n, 2) and whether each segment is free."""
         L, _, lo, hi, contains, sel, lo_b, hi_b = self._clip(P, Q, BOUNDARY_BAND)
-        free = self._covered(L, lo, hi, contains)
         point = _point_like(L, lo, hi)
+        free = self._covered(L, lo, hi, contains, point)
         lo, hi = _binding(lo, hi, lo_b, hi_b)
         over = (hi - lo) > OVERLAP_TOL
         use = np.where(point[:, None], contains, over)
@@ -161,11 +161,13 @@ class SpeedLimits:
         lim = np.minimum(lim, self.v_max)
         return lim, free
 
-    def _covered(self, L, lo, hi, contains) -> np.ndarray:
-        """Whether each clipped segment stays in the free space (no gap over `GAP_TOL`)."""
+    def _covered(self, L, lo, hi, contains, point=None) -> np.ndarray:
+        """Whether each clipped segment stays in the free space (no gap over `GAP_TOL`);
+        `point` is `_point_like` of the same segments when the caller has it."""
         if lo.shape[1] == 0:
             return np.zeros(len(L), dtype=bool)
-        point = _point_like(L, lo, hi)
+        if point is None:
+            point = _point_like(L, lo, hi)
         over = (hi - lo) > OVERLAP_TOL
         # Covered when the overlaps, sorted by start, leave no gap longer than GAP_TOL.
         lo_m = np.where(over, lo, np.inf)
