@@ -269,6 +269,29 @@ def test_reference_along_from_a_stop_on_a_seam_nanometres_short_of_a_waypoint():
     assert_valid(floor, ref, stop, rest[-1], v_max=0.61, a_max=1.92)
 
 
+def test_reference_along_from_a_stop_nanometres_inside_a_slower_zone():
+    # Fuzz case s21-0052 (tests/path_cases/README.md): r03 stopped 45 nm inside a slower
+    # zone; the first piece of the timing was that long, its weight in the speed LP's first
+    # phase 2e6 against 0.006 for the longest, and HiGHS failed on the scaling (the follower
+    # raised on 200 of its commands).
+    floor = load_floor(
+        FilePath(__file__).resolve().parent / "path_cases" / "sliver_at_a_start.toml"
+    )
+    planner = PathPlanner(floor, v_max=0.77, a_max=0.71)
+    stop = (12.996847741130503, -32.902873792412585)
+    rest = [
+        (12.996847779926812, -32.90287376986611),
+        (13.835750548065004, -33.68602475886086),
+        (16.557315, -32.840531999999996),
+        (30.238053610766116, -24.539276721472174),
+        (30.862115438750564, -25.54569521988597),
+        (22.46332678140109, -32.456706035306325),
+        (16.5699, -39.5677),
+    ]
+    ref = planner.reference_along(stop, rest, dt=0.1, t0=0.0)
+    assert_valid(floor, ref, stop, rest[-1], v_max=0.77, a_max=0.71)
+
+
 def test_a_step_too_short_to_overlap_a_region_is_judged_where_it_starts():
     limits = SpeedLimits(hall(), 1.0)
     # 1.2 nm across the line x = 4 between two regions: longer than OVERLAP_TOL, but in

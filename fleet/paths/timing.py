@@ -34,6 +34,10 @@ CALM_MAX_STEPS = 4000
 MAX_ROUNDS = 8
 #: Rounds of slowing pieces whose steps break their own chord's limit (`Timing._tightened`).
 MAX_TIGHTENINGS = 8
+#: m: in the speed LP's first phase a piece shorter than this weighs as one this long. A robot
+#: 45 nm inside a slower zone made a piece that short, weighing 2e6 against 0.006 for the
+#: longest, and HiGHS failed on the scaling (fuzz s21-0052, follower: 200 failed ticks).
+COVER_MIN_M = 1e-4
 
 
 class Timing:
@@ -238,8 +242,10 @@ class Timing:
         h.addVars(nvar, np.zeros(nvar), np.concatenate([ub, np.full(n_tv, inf)]))
         cols = np.arange(nvar, dtype=np.int32)
         # Phase 1: cover as much of every piece as the steps allow (relative to its length, so
-        # a long piece cannot buy coverage with a short one's).
-        h.changeColsCost(nvar, cols, np.concatenate([-1.0 / target[piece_of], np.zeros(n_tv)]))
+        # a long piece cannot buy coverage with a short one's; one shorter than `COVER_MIN_M`
+        # weighs as if that long, or its weight alone breaks HiGHS's scaling).
+        weight = 1.0 / np.maximum(target, COVER_MIN_M / dt)
+        h.changeColsCost(nvar, cols, np.concatenate([-weight[piece_of], np.zeros(n_tv)]))
         h.addRows(len(rows_lo), rows_lo, rows_hi, len(index), starts, index, value)
         # A failed run raises SolverError (HiGHS's message): no timing can come from this LP.
         if solve(h, "reference timing LP").status != highspy.HighsModelStatus.kOptimal:
