@@ -116,6 +116,13 @@ def judged(case: str, tmp_path: Path, confirm: bool = True) -> list:
         # for the last 110 s. A stuck robot going home now steps aside for a higher stuck one
         # going home or with a job, as a robot with a job does.
         "homes_face_to_face",
+        # Fuzz seed 91 (s91-0723): eight robots start round one depot; r05's job goes via it,
+        # and r01 is parked on it. r05 backed off for r01, and r07, aside for r05, took that
+        # for the end of its wait: it drove home into the ring, across r01's way out, r01
+        # never got out, and after the hold r05 came back to the same block, every 70 s (job
+        # undone after 840 s). A robot aside now waits while the one it made way for is aside
+        # itself and comes back to the same goal.
+        "aside_while_backing_off",
     ],
 )
 def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:

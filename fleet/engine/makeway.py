@@ -288,6 +288,12 @@ class MakeWay(Spots):
             robot.aside = aside = None
         if aside is not None:
             return aside.spot
+        return self._own_goal(robot)
+
+    @staticmethod
+    def _own_goal(robot: RobotState) -> tuple[float, float] | None:
+        """Where `robot` heads when not aside: where its job sends it, else its charger, else
+        home (or nowhere, idle without `return_home`)."""
         if robot.goal is not None:
             return robot.goal
         if robot.charger_at is not None:
@@ -549,8 +555,15 @@ class MakeWay(Spots):
         other = self.robots.get(aside.made_way_for)
         if other is None or not other.in_service:
             return False
-        # The other may be backing off to let this one out first: it still comes.
-        backing = other.aside is not None and other.aside.made_way_for == robot.id
+        # The other may be aside itself, backing off to let this one or a third robot out
+        # first: it still comes, and this one would stand in its way again. Fuzz s91-0723:
+        # r07, aside for r05 (with a job via a depot ringed by parked robots), drove home
+        # into the ring the moment r05 backed off to let the robot parked on the depot out,
+        # and stood in that one's way out: the back-off came back to the same block every
+        # 70 s, the job undone after 840 s.
+        backing = other.aside is not None and (
+            other.aside.made_way_for == robot.id or self._own_goal(other) == aside.their_goal
+        )
         if other.watched_goal != aside.their_goal and not backing:
             return False
         gx, gy = aside.their_goal
