@@ -251,3 +251,24 @@ def test_the_wait_aside_outlasts_the_other_backing_off_for_a_third(world3: World
         stuck.return_home = True
         for robot in (idle, stuck, third):
             robot.aside, robot.watched_goal = None, None
+
+
+def test_a_robot_at_rest_a_rounding_off_its_goal_is_parked_and_let_out(world3: World) -> None:
+    # Fuzz s91-0045 (on the branch of s91-0723's fix): r04 stood at home 1.008e-9 m off it
+    # (rounding), in the way of r03 going home; "parked" meant within 1e-9 m, so r03 backed
+    # off to let r04 go where it already was, the back-off ended at once, and r04 was never
+    # sent aside. At rest at its goal as the run counts arrival, it is parked for good.
+    idle, stuck, third = (world3.robots[r] for r in ("r01", "r02", "r03"))
+    for robot, p in zip((idle, stuck, third), ((1.0, 1.0), (1.0, 2.0), (2.0, 1.0)), strict=True):
+        robot.x, robot.y = p
+        robot.vx = robot.vy = 0.0
+        robot.aside, robot.job = None, None
+    idle.watched_goal = (1.0 + 1.5e-9, 1.0)  # home, off by a rounding
+    stuck.watched_goal = third.watched_goal = None
+    try:
+        fresh(world3).ask(stuck, (idle.x, idle.y), [idle], t=0.0)  # shut in a corner
+        assert stuck.aside is not None and stuck.aside.made_way_for == idle.id
+        assert idle.aside is not None and idle.aside.made_way_for == stuck.id
+    finally:
+        for robot in (idle, stuck, third):
+            robot.aside, robot.watched_goal = None, None

@@ -413,13 +413,16 @@ class MakeWay(Spots):
     ) -> None:
         """`blocker` has no spot off `stuck`'s route (to `goal`) it can reach without closing in
         on `stuck`: send `stuck` off the blocker's own way instead. A blocker with somewhere to
-        go is let go there; one parked for good (idle, not going home) is sent to the spot off
-        `stuck`'s route it would take were `stuck` not in the way, once `stuck` has backed off
-        its way there."""
+        go is let go there; one parked for good (idle, not going home, or at rest at its goal) is
+        sent to the spot off `stuck`'s route it would take were `stuck` not in the way, once
+        `stuck` has backed off its way there."""
         if stuck.aside is not None or not stuck.in_service:
             return
         theirs = blocker.watched_goal
-        parked = theirs is None or math.hypot(theirs[0] - blocker.x, theirs[1] - blocker.y) < 1e-9
+        # At rest at its goal as the run counts arrival, it will not leave by itself: a robot
+        # 1.008e-9 m from home counted as one going there, the stuck robot backed off for
+        # nothing and came back to it at once (fuzz s91-0045, on this branch).
+        parked = theirs is None or at_rest_near(blocker, theirs, self.arrival_m)
         plan = self._back_off_plan(stuck, blocker, route, theirs, parked, frozenset())
         crowd: list[tuple[RobotState, tuple[float, float]]] = []
         if plan is None:
