@@ -116,6 +116,19 @@ def judged(case: str, tmp_path: Path, confirm: bool = True) -> list:
         # for the last 110 s. A stuck robot going home now steps aside for a higher stuck one
         # going home or with a job, as a robot with a job does.
         "homes_face_to_face",
+        # Fuzz seed 91 (s91-0723): eight robots start round one depot; r05's job goes via it,
+        # and r01 is parked on it. r05 backed off for r01, and r07, aside for r05, took that
+        # for the end of its wait: it drove home into the ring, across r01's way out, r01
+        # never got out, and after the hold r05 came back to the same block, every 70 s (job
+        # undone after 840 s). A robot aside now waits while the one it made way for is aside
+        # itself and comes back to the same goal.
+        "aside_while_backing_off",
+        # Fuzz seed 91 (s91-0638): period 1.0 s, eight robots round one depot 2.16 m apart
+        # (the follower keeps 2.1 m from a parked one). r02, idle, came back to the ring and
+        # stood 5.1 m from home behind it, beyond the reach from which a robot going home asks
+        # others aside, for the last 90 s. Main ran it clean since the pocket merge (another
+        # course); `test_a_robot_held_off_beyond_home_reach_by_a_ring_gets_home` pins it.
+        "home_beyond_reach",
     ],
 )
 def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
@@ -311,3 +324,20 @@ def test_a_robot_that_cannot_reach_its_spot_aside_is_let_by() -> None:
     assert s["engine"].get("backed_off", 0) >= 1
     findings = fz.Oracle(fz.MapModel.read(folder / "floor.toml")).judge(fz.record_of(world))
     assert findings == [], "\n".join(map(str, findings))
+
+
+def test_a_robot_held_off_beyond_home_reach_by_a_ring_gets_home() -> None:
+    # After fuzz s91-0638 (period 1.0 s, eight robots round one depot: r02, idle, stood 5.1 m
+    # from home behind the robots parked round it for the last 90 s). Here nine robots start
+    # round a depot in a hall, 2.16 m apart; the follower keeps 2.1 m from a parked one. r01,
+    # whose home is the middle one, comes back from a long job after the others: held off
+    # 4.3 m from home, beyond the 4.1 m from which a robot going home asks others aside, it
+    # drove to and fro 1.3 m south of the ring to the end (the oracle's 0.5 m stand-still
+    # test misses it). A robot going home stuck for two deadlock periods now asks wherever
+    # it is: r01 is home at 140 s.
+    world = World(load_scenario(CASES / "home_behind_a_ring" / "scen.toml"))
+    s = world.run().summary
+    assert s["jobs"]["completed"] == s["jobs"]["released"] == 4
+    assert s["violations"]["collision"] == 0
+    for r in world.robots.values():
+        assert math.dist((r.x, r.y), r.home) < 0.05, (r.id, r.x, r.y, r.home)

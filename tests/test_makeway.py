@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, box
 
 from fleet.engine import World
-from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M, MakeWay
+from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M, Aside, MakeWay
 from fleet.scenario import load_scenario, sensing_needed
 
 CASE = Path(__file__).resolve().parent / "cases" / "via_parked_robot"
@@ -220,3 +220,55 @@ def test_the_way_aside_keeps_the_followers_gap_from_every_robot(world3: World, x
         for p in (xy[0], xy[2]):
             reach = min(2 * r + max(OTHERS_M, kept), math.dist(xy[1], p))
             assert back.distance(Point(p)) >= reach - 1e-6
+
+
+def test_the_wait_aside_outlasts_the_other_backing_off_for_a_third(world3: World) -> None:
+    # Fuzz s91-0723: r07 stood aside for r05, whose job went via a depot ringed by parked
+    # robots; r05 then backed off to let r01, parked on the depot, out, and r07's wait ended
+    # at once (r05 headed elsewhere): it drove home into the ring, across r01's way out, and
+    # the back-off came back to the same block every 70 s. The robot made way for still comes
+    # back to the goal it was made way to, so the one aside holds its spot.
+    idle, stuck, third = (world3.robots[r] for r in ("r01", "r02", "r03"))
+    for robot in (idle, stuck, third):
+        robot.aside, robot.job, robot.watched_goal = None, None, None
+    hx, hy = stuck.home
+    idle.x, idle.y, stuck.x, stuck.y, third.x, third.y = hx + 2.5, hy, hx + 6.0, hy, 25.0, 15.0
+    stuck.return_home = True
+    stuck.watched_goal = stuck.home
+    make_way = fresh(world3)
+    make_way.ask(stuck, stuck.home, [idle], t=0.0)  # stuck on its way home
+    spot = idle.aside.spot
+    # The stuck robot backs off for the third one: it heads for its own spot now.
+    back = (hx + 6.0, hy + 3.0)
+    stuck.aside = Aside(back, third.id, (third.x, third.y), 5.0, 2.0, 100.0)
+    stuck.watched_goal = back
+    try:
+        assert make_way.goal_of(idle, 1.0) == spot
+        # Once it would not come back to that goal (idle, not going home), the wait ends.
+        stuck.return_home = False
+        assert make_way.goal_of(idle, 1.0) == idle.home
+    finally:
+        stuck.return_home = True
+        for robot in (idle, stuck, third):
+            robot.aside, robot.watched_goal = None, None
+
+
+def test_a_robot_at_rest_a_rounding_off_its_goal_is_parked_and_let_out(world3: World) -> None:
+    # Fuzz s91-0045 (on the branch of s91-0723's fix): r04 stood at home 1.008e-9 m off it
+    # (rounding), in the way of r03 going home; "parked" meant within 1e-9 m, so r03 backed
+    # off to let r04 go where it already was, the back-off ended at once, and r04 was never
+    # sent aside. At rest at its goal as the run counts arrival, it is parked for good.
+    idle, stuck, third = (world3.robots[r] for r in ("r01", "r02", "r03"))
+    for robot, p in zip((idle, stuck, third), ((1.0, 1.0), (1.0, 2.0), (2.0, 1.0)), strict=True):
+        robot.x, robot.y = p
+        robot.vx = robot.vy = 0.0
+        robot.aside, robot.job = None, None
+    idle.watched_goal = (1.0 + 1.5e-9, 1.0)  # home, off by a rounding
+    stuck.watched_goal = third.watched_goal = None
+    try:
+        fresh(world3).ask(stuck, (idle.x, idle.y), [idle], t=0.0)  # shut in a corner
+        assert stuck.aside is not None and stuck.aside.made_way_for == idle.id
+        assert idle.aside is not None and idle.aside.made_way_for == stuck.id
+    finally:
+        for robot in (idle, stuck, third):
+            robot.aside, robot.watched_goal = None, None

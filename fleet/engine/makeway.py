@@ -288,6 +288,12 @@ class MakeWay(Spots):
             robot.aside = aside = None
         if aside is not None:
             return aside.spot
+        return self._own_goal(robot)
+
+    @staticmethod
+    def _own_goal(robot: RobotState) -> tuple[float, float] | None:
+        """Where `robot` heads when not aside: where its job sends it, else its charger, else
+        home (or nowhere, idle without `return_home`)."""
         if robot.goal is not None:
             return robot.goal
         if robot.charger_at is not None:
@@ -407,13 +413,16 @@ class MakeWay(Spots):
     ) -> None:
         """`blocker` has no spot off `stuck`'s route (to `goal`) it can reach without closing in
         on `stuck`: send `stuck` off the blocker's own way instead. A blocker with somewhere to
-        go is let go there; one parked for good (idle, not going home) is sent to the spot off
-        `stuck`'s route it would take were `stuck` not in the way, once `stuck` has backed off
-        its way there."""
+        go is let go there; one parked for good (idle, not going home, or at rest at its goal) is
+        sent to the spot off `stuck`'s route it would take were `stuck` not in the way, once
+        `stuck` has backed off its way there."""
         if stuck.aside is not None or not stuck.in_service:
             return
         theirs = blocker.watched_goal
-        parked = theirs is None or math.hypot(theirs[0] - blocker.x, theirs[1] - blocker.y) < 1e-9
+        # At rest at its goal as the run counts arrival, it will not leave by itself: a robot
+        # 1.008e-9 m from home counted as one going there, the stuck robot backed off for
+        # nothing and came back to it at once (fuzz s91-0045, on this branch).
+        parked = theirs is None or at_rest_near(blocker, theirs, self.arrival_m)
         plan = self._back_off_plan(stuck, blocker, route, theirs, parked, frozenset())
         crowd: list[tuple[RobotState, tuple[float, float]]] = []
         if plan is None:
@@ -549,8 +558,15 @@ class MakeWay(Spots):
         other = self.robots.get(aside.made_way_for)
         if other is None or not other.in_service:
             return False
-        # The other may be backing off to let this one out first: it still comes.
-        backing = other.aside is not None and other.aside.made_way_for == robot.id
+        # The other may be aside itself, backing off to let this one or a third robot out
+        # first: it still comes, and this one would stand in its way again. Fuzz s91-0723:
+        # r07, aside for r05 (with a job via a depot ringed by parked robots), drove home
+        # into the ring the moment r05 backed off to let the robot parked on the depot out,
+        # and stood in that one's way out: the back-off came back to the same block every
+        # 70 s, the job undone after 840 s.
+        backing = other.aside is not None and (
+            other.aside.made_way_for == robot.id or self._own_goal(other) == aside.their_goal
+        )
         if other.watched_goal != aside.their_goal and not backing:
             return False
         gx, gy = aside.their_goal

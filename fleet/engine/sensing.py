@@ -40,6 +40,9 @@ BLOCKING_GAP_M = 1.0
 #: A robot going home that is stuck this close (m) to it asks idle robots to make way (plus
 #: its sqrt(2)*a_max*period**2: at a coarse period start spots are that much further apart).
 HOME_REACH_M = 3.0
+#: A robot going home (or to its charger) that made no progress for this many deadlock periods
+#: asks idle robots to make way however far from home it is.
+HOME_ASK_FACTOR = 2.0
 #: A robot with a job that made no progress for this long (s), but less than a deadlock
 #: period, sends the idle robots on its route close by aside (`MakeWay.idle_on_route`).
 IDLE_ASK_S = 5.0
@@ -223,9 +226,15 @@ class Sensing:
         # moved idle robots round and round the crowded depots for nothing. So does a robot
         # going to its charger. At a coarse period robots keep the unseen step from a parked
         # one, and one 4 m from home between homes 3.6 m apart never asked (fuzz s21-0507).
+        # One stuck for `HOME_ASK_FACTOR` deadlock periods asks wherever it is: robots parked
+        # round its home, kept clear by the gap a follower keeps at a coarse period, held it
+        # off further out than that (fuzz s91-0638: 5.1 m from home, still for the last 90 s).
         asks = r.job is not None or (
             goal in (r.home, r.charger_at)
-            and math.hypot(goal[0] - r.x, goal[1] - r.y) <= HOME_REACH_M + reach - BLOCKING_GAP_M
+            and (
+                math.hypot(goal[0] - r.x, goal[1] - r.y) <= HOME_REACH_M + reach - BLOCKING_GAP_M
+                or t - r.progress_s >= HOME_ASK_FACTOR * after - 1e-9
+            )
         )
         movable = [
             o
