@@ -29,7 +29,8 @@ and the run's record (samples, events, print caps). Finding kinds:
                   common samples where both move on straight lines)
 ``stuck``         a robot with a job it has not reached stays within 0.5 m for the last
                   `STUCK_S` seconds of the run
-``stuck_home``    an idle robot away from home (return_home) stays put the same way
+``stuck_home``    an idle robot away from home (return_home) stays put the same way, or
+                  stays within `WANDER_M` and gets no nearer home
 ``job_waiting``   a job stays unassigned for `WAIT_S` seconds while a robot is idle
 ``job_not_done``  a job released `DONE_GRACE_S` seconds or more before the end is neither
                   delivered nor failed with a reason, and is still not in a longer run of the
@@ -98,6 +99,10 @@ SPEED_TOL = 1e-6
 #: seconds is stuck for good (judged only in runs at least `LIVENESS_MIN_S` long).
 STUCK_S = 90.0
 STUCK_RADIUS_M = 0.5
+#: An idle robot away from home that stays within this (m) of where it was `STUCK_S` before
+#: the end and got no closer to home than then (by `STUCK_RADIUS_M`) is stuck too: one drove
+#: back and forth over 1.3 m, 4.3 m from home, for the last 90 s and more of a run.
+WANDER_M = 3.0
 LIVENESS_MIN_S = 180.0
 #: A job unassigned this long while some robot is idle all along is waiting beside it.
 WAIT_S = 60.0
@@ -884,9 +889,11 @@ class Oracle:
                     continue
                 win = t >= t[-1] - STUCK_S
                 spread = float(np.max(np.hypot(*(xy[win] - xy[win][0]).T)))
-                if spread >= STUCK_RADIUS_M:
-                    continue
                 jobs = [j for j, who in holder.items() if who == robot]
+                if spread >= STUCK_RADIUS_M and (
+                    jobs or spread >= WANDER_M or not run.return_home.get(robot)
+                ):
+                    continue
                 goal = next((j for j in jobs if j not in arrived), None)
                 if goal is not None:
                     since = min(held_from.get((j, robot), end) for j in jobs)
@@ -904,8 +911,11 @@ class Oracle:
                 elif not jobs and run.return_home.get(robot):
                     home = xy[0]
                     away = float(math.dist(home, xy[-1]))
+                    gap = np.hypot(*(xy[win] - home).T)
+                    # Still, or wandering round a spot and no nearer home than before.
+                    nearer = spread >= STUCK_RADIUS_M and gap.min() < gap[0] - STUCK_RADIUS_M
                     idle_since = max((y for _, y in busy[robot]), default=0.0)
-                    if away > 0.5 and idle_since <= t[-1] - STUCK_S:
+                    if away > 0.5 and not nearer and idle_since <= t[-1] - STUCK_S:
                         out.append(
                             Finding(
                                 "stuck_home",
@@ -913,7 +923,7 @@ class Oracle:
                                 float(t[-1] - STUCK_S),
                                 f"idle since {idle_since:.1f} s, {away:.2f} m from home "
                                 f"({home[0]:.2f}, {home[1]:.2f}), stayed within {spread:.2f} m "
-                                f"for the last {STUCK_S:g} s",
+                                f"and no nearer home for the last {STUCK_S:g} s",
                             )
                         )
         return out

@@ -197,6 +197,44 @@ def test_the_oracle_sees_a_robot_stuck_with_a_job_and_a_job_waiting(oracle):
     assert kinds(found) == ["contact", "job_not_done", "job_waiting", "stuck"]
 
 
+def back_and_forth(home, there, swing: float, duration: float):
+    """A robot driving from `home` to `there` in 10 s, then back and forth `swing` m towards
+    home and out again, every 10 s, to `duration`: 0.25-s samples."""
+    legs = [line(0.0, 0.25, home, there, 40)]
+    near = (there[0], there[1] - swing)
+    t0, out = 10.0, True
+    while t0 < duration:
+        a, b = (there, near) if out else (near, there)
+        legs.append(line(t0, 0.25, a, b, 40))
+        t0, out = t0 + 10.0, not out
+    t = np.concatenate([legs[0][0]] + [leg[0][1:] for leg in legs[1:]])
+    xy = np.concatenate([legs[0][1]] + [leg[1][1:] for leg in legs[1:]])
+    v = np.concatenate([legs[0][2][:-1]] + [leg[2][:-1] for leg in legs[1:]] + [[[0.0, 0.0]]])
+    return t, xy, v
+
+
+def test_the_oracle_sees_an_idle_robot_wander_without_getting_home(oracle):
+    # Idle (no job), 4.3 m from home, back and forth over 1.3 m for the last 200 s: it never
+    # stays within 0.5 m, but it gets no nearer home either.
+    run = record(
+        {"r1": back_and_forth((15, 2), (15, 6.3), 1.3, 210.0)},
+        duration=210.0,
+        return_home={"r1": True},
+    )
+    found = oracle.judge(run)
+    assert kinds(found) == ["stuck_home"] and "no nearer home" in found[0].detail
+    # Not going home (no return_home): wandering there is no finding; nor is swinging so far
+    # (3.5 m) that it may be on its way round something.
+    run = record({"r1": back_and_forth((15, 2), (15, 6.3), 1.3, 210.0)}, duration=210.0)
+    assert oracle.judge(run) == []
+    run = record(
+        {"r1": back_and_forth((15, 2), (15, 8.0), 3.5, 210.0)},
+        duration=210.0,
+        return_home={"r1": True},
+    )
+    assert oracle.judge(run) == []
+
+
 def test_a_refused_map_is_counted_as_refused(tmp_path):
     case = fz.generate_case(1, 0, "follower", quick=True)
     folder = case.write(tmp_path / "bad")
