@@ -3,8 +3,9 @@
 A robot needs keeping clear of when its predicted square can come within reach of the plan
 (the reachable boxes, narrowed to the regions each step may use) and, with
 ``respect_priority``, it outranks this one wherever it is, and only when parked for the whole
-horizon or close (`close`) if this one outranks it. The higher one thus keeps its course unless
-the lower one is close (when both yielded at any distance, both swerved alike and met again:
+horizon, close (`close`), or settling into a queue at this one's goal (`settling`: it cannot
+get out of the way) if this one outranks it. The higher one thus keeps its course unless the
+lower one is close (when both yielded at any distance, both swerved alike and met again:
 measured head-on). A moving robot may carry on with its plan or drop it at its next tick (to
 brake when its solve fails, or to re-plan, as this one does at the same time), so the plan
 keeps clear of the box round both its plan and its braking path; only a robot parked for the
@@ -46,6 +47,9 @@ __all__ = [
     "brake_runs_into",
     "must_announce",
     "shows_start",
+    "settling",
+    "SETTLING_M",
+    "QUEUE_M",
 ]
 
 
@@ -69,14 +73,6 @@ def robots_to_avoid(
         distance = math.hypot(n.x - obs.x, n.y - obs.y)
         ob = Obstacle.square(n.robot, centres, half, margin)
         moving = not at_rest(centres)
-        if (
-            respect_priority
-            and moving
-            and outranks(obs, n)
-            and not shows_start(n)
-            and not close(obs, n, spec, half)
-        ):
-            continue  # it yields to this robot (braking if it must); this one keeps its course
         if moving:
             # A moving robot may carry on with its plan, or drop it at its next tick to brake
             # (a failed solve) or to re-plan: keep clear of the box round both, whichever robot
@@ -84,12 +80,47 @@ def robots_to_avoid(
             # when that one braked; tests/test_mpc_contact.py).
             stop = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, n.limits(spec).a_max, N))
             stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
+            if (
+                respect_priority
+                and outranks(obs, n)
+                and not shows_start(n)
+                and not settling(n, centres, stop, obs.goal)
+                and not close(obs, n, spec, half)
+            ):
+                continue  # it yields to this robot (braking if it must); this one keeps its course
             ob = Obstacle.between(n.robot, centres, stop, half, margin)
         if not reaches(ob, p_lo, p_hi):
             continue
         picked.append((distance, n.robot, ob))
     picked.sort(key=lambda item: (item[0], item[1]))
     return [ob for _, _, ob in picked]
+
+
+#: A lower robot whose plan and braking path both stay within this (m) of where it is can get
+#: no farther out of the way: a higher robot keeps clear of it near its own goal (`settling`).
+SETTLING_M = 1.0
+#: How near (m) this robot's goal a lower robot's plan must end to count as settling there.
+QUEUE_M = 3.0
+
+
+def settling(
+    n: Neighbour, centres: np.ndarray, stop: np.ndarray, goal: tuple[float, float] | None
+) -> bool:
+    """Whether moving robot `n` is settling into a queue at this robot's `goal`: its predicted
+    `centres` and its braking path `stop` (``(N+1, 2)`` each) stay within `SETTLING_M` of it,
+    along both axes, and its plan ends within `QUEUE_M` of the goal.
+
+    A higher robot keeps its course past a moving lower one, which yields; but one settling
+    into a queue at a station, boxed in by the robots parked there, cannot: the higher one,
+    bound for the same station, planned to stop where the lower one stood or was stopping (the
+    nearest free spot), and the lower one's solves were infeasible until it stood still: most
+    of the fallbacks of 40 MPC robots on the fleet scenario (docs/mpc.md, "Queues")."""
+    if goal is None:
+        return False
+    here = np.array([n.x, n.y])
+    reach = max(np.max(np.abs(centres - here)), np.max(np.abs(stop - here)))
+    end = centres[-1]
+    return bool(reach <= SETTLING_M and math.hypot(end[0] - goal[0], end[1] - goal[1]) <= QUEUE_M)
 
 
 def shows_start(n: Neighbour) -> bool:

@@ -2,9 +2,18 @@
 
 The previous plan one step on, if the robot is on it and (with other robots about and
 ``avoid_robots``) that keeps clear of every neighbour's predicted position, between the steps
-too; else braking (`fallback.brake`). Either way the controller then plans a new trip. It lives
-apart from `fallback`, whose braking paths `neighbours` builds on, because it asks `neighbours`
-whether the shifted plan keeps clear.
+too, or no braking path stays in the free space; else braking (`fallback.brake`). Either way
+the controller then plans a new trip. It lives apart from `fallback`, whose braking paths
+`neighbours` builds on, because it asks `neighbours` whether the shifted plan keeps clear.
+
+The previous plan was solved in the floor's regions, so it stays in the free space to rest;
+a braking path need not: a plan that turns along a wall leaves the robot, one step on, where
+braking straight on (or at any of `fallback.BRAKE_RATES`) runs into the wall. Dropping such
+a plan for a neighbour drove the robot 3.7 mm into an obstacle's clearance, and its braking
+path came no farther from that neighbour than the plan (fuzz s91-0042: a higher robot bound
+for the station the robot had just left planned across its path; tests/test_mpc_recover.py).
+A neighbour is a prediction, the obstacle is not: the plan is kept, and it is the plan the
+others saw.
 """
 
 from __future__ import annotations
@@ -13,7 +22,7 @@ import numpy as np
 
 from fleet.floor import Floor
 from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveReport
-from fleet_plugins.mpc.fallback import brake, follow_previous
+from fleet_plugins.mpc.fallback import brake, follow_previous, free_brake
 from fleet_plugins.mpc.model import Solution
 from fleet_plugins.mpc.neighbours import clear_of_neighbours
 
@@ -32,11 +41,14 @@ def fall_back(
 ) -> tuple[Command, Solution | None]:
     """The FALLBACK command for a failed solve, carrying its `report`, and the plan to keep as
     the last one: `last` one step on when the robot is `on_plan` (it is where `last` said it
-    would be now) and that keeps clear of the others, else None (the robot brakes)."""
+    would be now) and that keeps clear of the others or no brake stays in the free space of
+    the `floor` (`fallback.free_brake`), else None (the robot brakes)."""
     if on_plan and obs.neighbours and avoid_robots:
         assert last is not None and last.p is not None
         shifted_p = np.vstack([last.p[1:], last.p[-1:]])
-        on_plan = clear_of_neighbours(obs, spec, shifted_p)
+        on_plan = clear_of_neighbours(obs, spec, shifted_p) or (
+            floor is not None and free_brake(obs, spec, floor) is None
+        )
     if on_plan:
         assert last is not None
         return follow_previous(obs, last, spec.period, report)
