@@ -99,9 +99,9 @@ SPEED_TOL = 1e-6
 #: seconds is stuck for good (judged only in runs at least `LIVENESS_MIN_S` long).
 STUCK_S = 90.0
 STUCK_RADIUS_M = 0.5
-#: An idle robot away from home that stays within this (m) of where it was `STUCK_S` before
-#: the end and got no closer to home than then (by `STUCK_RADIUS_M`) is stuck too: one drove
-#: back and forth over 1.3 m, 4.3 m from home, for the last 90 s and more of a run.
+#: An idle robot that stays within this (m) of where it was `STUCK_S` before the end, more than
+#: `STUCK_RADIUS_M` from home all along and no nearer it than then (by `STUCK_RADIUS_M`), is
+#: stuck too: one drove back and forth over 1.3 m, 4.3 m from home, for the last 90 s of a run.
 WANDER_M = 3.0
 LIVENESS_MIN_S = 180.0
 #: A job unassigned this long while some robot is idle all along is waiting beside it.
@@ -912,8 +912,11 @@ class Oracle:
                     home = xy[0]
                     away = float(math.dist(home, xy[-1]))
                     gap = np.hypot(*(xy[win] - home).T)
-                    # Still, or wandering round a spot and no nearer home than before.
-                    nearer = spread >= STUCK_RADIUS_M and gap.min() < gap[0] - STUCK_RADIUS_M
+                    # Still, or wandering round a spot away from home all along, and no nearer
+                    # it than at first (not one sent off home, aside, within the window).
+                    nearer = spread >= STUCK_RADIUS_M and (
+                        gap.min() < max(gap[0] - STUCK_RADIUS_M, STUCK_RADIUS_M)
+                    )
                     idle_since = max((y for _, y in busy[robot]), default=0.0)
                     if away > 0.5 and not nearer and idle_since <= t[-1] - STUCK_S:
                         out.append(
