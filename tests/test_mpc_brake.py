@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +17,11 @@ from hypothesis import assume, event, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Polygon, box
 
-from fleet.floor import FloorSpec, Obstacle, compile_floor
+from fleet.floor import FloorSpec, Obstacle, SpeedZone, compile_floor
 from fleet.plugins import ControlStatus, Neighbour, Observation, RobotSpec
 from fleet.plugins.robot import DoubleIntegrator
-from fleet_plugins.mpc.fallback import brake, stays_put
+from fleet_plugins.mpc.fallback import brake, free_brake, stays_put, within_zones
+from fleet_plugins.mpc.neighbours import brake_runs_into
 from tests.scripts import load_script
 
 #: The wall of fuzz floor s41-0109 (a thin band at -36 degrees) and that run's robot.
@@ -151,6 +153,34 @@ def test_a_robot_held_in_a_door_solves_rather_than_brake_out_of_the_free_space(t
     assert outcome.status == "ok", outcome.findings
     assert outcome.engine["obstacle"] == 0
     assert outcome.engine["fallbacks"] <= 2
+
+
+def test_a_robot_whose_brake_would_enter_a_slower_zone_too_fast_solves_instead() -> None:
+    # Fuzz case s21-0854: r01, held (a lower robot close), braked straight on at 0.95 m/s^2
+    # from 0.8425 m/s and crossed into a 0.52 m/s zone at 0.605 m/s. A brake knows no zones:
+    # a held robot whose brake would break one solves instead (`brake_runs_into`).
+    spec = RobotSpec(radius=0.413, v_max=1.22, a_max=0.95, period=0.25)
+    floor = compile_floor(
+        FloorSpec(
+            source="<test slow zone ahead>",
+            name="slow zone ahead",
+            boundary=box(0.0, 0.0, 30.0, 10.0),
+            default_v_max=(1.22, 1.22),
+            clearance=spec.radius,
+            zones=(SpeedZone("slow", box(20.0, 0.0, 30.0, 10.0), (0.52, 0.52)),),
+        )
+    )
+    # 0.8425 m/s, 0.3 m short of the zone: braking covers 0.21 m and 0.15 m in the next two
+    # steps, the second into the zone at 0.605 m/s.
+    near = Observation("r01", 0, 0.0, 19.7, 5.0, 0.8425, 0.0)
+    assert not within_zones(floor, spec, free_brake(near, spec, floor)[2])
+    assert brake_runs_into(near, spec, HORIZON, floor)
+    # Far enough off, or slow enough, the brake keeps within the zone's limit.
+    for obs in (replace(near, x=17.0), replace(near, vx=0.5)):
+        assert within_zones(floor, spec, free_brake(obs, spec, floor)[2])
+        assert not brake_runs_into(obs, spec, HORIZON, floor)
+    # Without the floor nothing is known of zones (nor of walls).
+    assert not brake_runs_into(near, spec, HORIZON)
 
 
 @pytest.mark.parametrize("neighbours", [(), (Neighbour("r2", 30.0, 45.0, 0.0, 0.0),)])

@@ -22,6 +22,7 @@ from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
 from fleet.floor import BOUNDARY_BAND, Floor
+from fleet.paths.limits import SpeedLimits
 from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveReport
 from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet_plugins.mpc.model import Solution
@@ -33,6 +34,7 @@ __all__ = [
     "plan_points",
     "brake",
     "free_brake",
+    "within_zones",
     "braking_path",
     "stays_put",
     "park",
@@ -52,6 +54,8 @@ _RATE_PAIRS = sorted(
 _TO_REST = 100_000
 #: A plan whose every point is within this (m) of the robot keeps it where it is.
 STILL_M = 1e-6
+#: m/s: a braking step this little over a zone's limit is rounding (`within_zones`).
+ZONE_TOL = 1e-9
 
 
 def follow_previous(
@@ -213,6 +217,25 @@ def _stays_free(floor: Floor, path: tuple[tuple[float, float, float], ...]) -> b
     xy = [(x, y) for _, x, y in path]
     shape = Point(xy[0]) if len(xy) == 1 else LineString(xy)
     return bool(shapely.covers(_free_within_band(floor), shape))
+
+
+def within_zones(
+    floor: Floor, spec: RobotSpec, path: tuple[tuple[float, float, float], ...]
+) -> bool:
+    """Whether every step of `path` (samples ``(t, x, y)`` one period apart) keeps, on each
+    axis, within the speed limit of every region it overlaps and the robot's own."""
+    if len(path) < 2:
+        return True
+    xy = np.array([(x, y) for _, x, y in path], dtype=float)
+    v = np.abs(np.diff(xy, axis=0)) / spec.period
+    lim, _ = _limits(floor, spec.v_max).of_segments(xy[:-1], xy[1:])
+    return bool(np.all(v <= lim + ZONE_TOL))
+
+
+@functools.lru_cache(maxsize=8)
+def _limits(floor: Floor, v_max: float) -> SpeedLimits:
+    """The floor's zone limits for a robot of `v_max` (made once per floor and speed)."""
+    return SpeedLimits(floor, v_max)
 
 
 @functools.lru_cache(maxsize=8)

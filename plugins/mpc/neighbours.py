@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fleet.plugins import Neighbour, Observation, RobotSpec
-from fleet_plugins.mpc.fallback import REST_SPEED, braking_path, free_brake
+from fleet_plugins.mpc.fallback import REST_SPEED, braking_path, free_brake, within_zones
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
 if TYPE_CHECKING:
@@ -224,17 +224,22 @@ def brake_runs_into(
 ) -> bool:
     """Whether braking along the line of travel would bring this robot into contact with a
     neighbour predicted at rest for the horizon, between the samples too; or, given the
-    `floor`, whether every brake of `fallback.free_brake` would leave its free space. Such a
+    `floor`, whether every brake of `fallback.free_brake` would leave its free space, or the
+    one it takes break a zone's speed limit (`fallback.within_zones`). Such a
     robot may be held itself (`must_hold`: it only brakes, at rest it stays) and never give
     way, so a held robot solves instead (40 MPC robots on the fleet scenario: a higher robot
     whose plan curved round a robot held at rest braked straight on into it;
     tests/test_mpc_contact.py). A robot held in a door on a plan that turned there braked
     straight on, out of the free space, and never solved a feasible plan again (fuzz
-    s31-0665: 270 fallbacks)."""
+    s31-0665: 270 fallbacks). So does one whose brake would cross into a slower zone faster
+    than its limit: a brake knows no zones, and a robot held while heading for one entered it
+    at 0.605 m/s against 0.52 (fuzz s21-0854)."""
     if max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED:
         return False
-    if floor is not None and free_brake(obs, spec, floor) is None:
-        return True
+    if floor is not None:
+        found = free_brake(obs, spec, floor)
+        if found is None or not within_zones(floor, spec, found[2]):
+            return True
     dt = spec.period
     stop = np.array(braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, spec.a_max, horizon))
     p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])
