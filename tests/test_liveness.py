@@ -110,6 +110,12 @@ def judged(case: str, tmp_path: Path, confirm: bool = True) -> list:
         # the last 100 s (0.17 m of motion: neither progress nor at rest, so never reported).
         # A trip whose solves start from a state twice now solves every tick (`RepeatWatch`).
         "mpc_reuse_cycle",
+        # Fuzz seed 21 (s21-0087, MPC): r02 went round r03 on the far side of a zone's corner
+        # from its reference and stopped in the zone's tip; its progress (the nearest sample)
+        # was past the corner, the corridor's regions did not meet the zone, and every solve
+        # was optimal at rest: 155 s still with its job, r01 and r03 4-10 m away. The corridor
+        # now opens back to the chord that holds the robot (`horizon.rejoin`).
+        "mpc_past_a_corner",
         # Fuzz seed 31 (s31-0463): period 0.87 s, three robots going home, idle, met face to
         # face between obstacles; each was reported stuck behind the others, but robots
         # going home ask others aside only near home, and give way only with a job: none moved

@@ -22,7 +22,14 @@ from fleet.printing import CapSchedule
 from fleet_plugins.mpc.model import Solution, StepData
 from fleet_plugins.mpc.trip import Trip, reach_boxes
 
-__all__ = ["PROGRESS_WINDOW", "step_data", "reference_window", "region_bounds", "into_regions"]
+__all__ = [
+    "PROGRESS_WINDOW",
+    "step_data",
+    "rejoin",
+    "reference_window",
+    "region_bounds",
+    "into_regions",
+]
 
 #: How far ahead (samples) the progress search along the reference looks.
 PROGRESS_WINDOW = 8
@@ -110,12 +117,17 @@ def step_data(
     # Far steps' region choices are the costliest to search and are solved again before the
     # robot gets there; near ones need room to go round a neighbour.
     near = N if wide or corridor_steps is None else corridor_steps
+    join = None
     for k in range(1, N):
         w = corridor if k <= near else 0
         lo = min(expected[k], chord[k]) - w
         if wide:
             lo = min(lo, progress - w)
         hi = max(expected[k + 1], chord_end[k]) + w
+        if k == 1:
+            join = rejoin(trip, p0 + dt * v0, lo, hi)
+        if join is not None:
+            lo, hi = min(lo, join), max(hi, join)
         allowed = set(trip.corridor(lo, hi))
         if last is not None:
             assert last.regions is not None
@@ -134,6 +146,25 @@ def step_data(
         )
         z_ub[k - 1, outside] = 0.0
     return StepData(p_lo, p_hi, v_lo, v_hi, z_ub, p_ref, v_ref), progress
+
+
+def rejoin(trip: Trip, p1: np.ndarray, lo: int, hi: int) -> int | None:
+    """The chord to open the corridor to when the robot's first planned point `p1` lies in
+    none of the regions of chords ``lo .. hi`` (the first step's corridor); else None.
+
+    Progress along the reference is the nearest sample, as the crow flies. A robot that went
+    round a neighbour on the other side of a corner can be nearest to a sample past the corner
+    while it stands in a region the reference left before it: the corridor's regions then do
+    not meet its own (only the previous plan's region holds it), every solve is optimal at rest
+    and the robot stays there for good (fuzz s21-0087: 155 s with its job, a neighbour in
+    sight so `fallback.stays_put` never fired). Opening every step's corridor to the chord
+    nearest the progress that overlaps the robot's region joins the two: consecutive chords
+    meet at a sample, so chords ``lo .. hi`` with it are one chain of regions that meet.
+    """
+    here = trip.holding(p1)
+    if not here or here & trip.corridor(lo, hi):
+        return None
+    return trip.chord_meeting(here, min(max(lo, 0), hi))
 
 
 def reference_window(

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from fleet.floor import Floor
+from fleet.floor import BOUNDARY_BAND, Floor
 from fleet.paths import Reference
 
 __all__ = ["Face", "Trip", "reach_boxes", "MIDPOINT_MARGIN"]
@@ -57,6 +57,8 @@ class Trip:
         i -> i+1 overlaps (for i = K: the regions holding the goal).
     region_boxes:
         ``(len(S), 4)`` bounding boxes, for the reachability filter.
+    hulls:
+        ``(A, b)`` of each region of S (``A p <= b`` inside), to tell which hold a point.
     """
 
     reference: Reference
@@ -66,6 +68,7 @@ class Trip:
     box: tuple[float, float, float, float]
     chord_sets: tuple[frozenset[int], ...]
     region_boxes: np.ndarray
+    hulls: tuple[tuple[np.ndarray, np.ndarray], ...]
 
     @classmethod
     def build(cls, floor: Floor, reference: Reference) -> Trip:
@@ -104,6 +107,7 @@ class Trip:
             box=box,
             chord_sets=tuple(frozenset(where[r] for r in c) for c in chords),
             region_boxes=boxes,
+            hulls=tuple((floor.regions[r].A, floor.regions[r].b) for r in region_ids),
         )
 
     def progress(self, points: np.ndarray, lo: int, width: int) -> np.ndarray:
@@ -122,6 +126,20 @@ class Trip:
         # The last index within a rounding error of the minimum.
         last = (hi - lo - 1) - np.argmax((d <= best + 1e-9)[:, ::-1], axis=1)
         return lo + last
+
+    def holding(self, point: np.ndarray, tol: float = BOUNDARY_BAND) -> frozenset[int]:
+        """Positions in `regions` of the regions that hold `point` (to `tol` m)."""
+        return frozenset(
+            n for n, (A, b) in enumerate(self.hulls) if float(np.max(A @ point - b)) <= tol
+        )
+
+    def chord_meeting(self, regions: frozenset[int], near: int) -> int | None:
+        """The chord nearest sample `near` (the earlier on a tie) that overlaps one of
+        `regions` (positions in `regions`); None if none does."""
+        hits = [i for i, c in enumerate(self.chord_sets) if c & regions]
+        if not hits:
+            return None
+        return min(hits, key=lambda i: (abs(i - near), i))
 
     def corridor(self, first: int, last: int) -> frozenset[int]:
         """Regions (positions in `regions`) of chords ``first .. last``, clamped to the trip."""
