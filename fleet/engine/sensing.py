@@ -501,7 +501,7 @@ def _parked(o: RobotState, tol: float) -> bool:
     if o.job is not None or o.queue or o.aside is not None:
         return False
     goal = o.watched_goal
-    return (goal is None and at_rest_near(o, (o.x, o.y), 0.0)) or at_rest_near(o, goal, tol)
+    return at_rest_near(o, (o.x, o.y) if goal is None else goal, tol)
 
 
 def _no_progress(r: RobotState, t: float, after: float) -> bool:
