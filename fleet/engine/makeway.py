@@ -567,7 +567,14 @@ class MakeWay(Spots):
         backing = other.aside is not None and (
             other.aside.made_way_for == robot.id or self._own_goal(other) == aside.their_goal
         )
-        if other.watched_goal != aside.their_goal and not backing:
+        # Sent to that goal as a spot aside this very tick (a parked blocker let out of a
+        # ring, its crowd sent aside with it), the deadlock watch still shows its old goal
+        # (fuzz s31-0037: r06, sent aside for r01, gave up its spot at once, and r01 never
+        # got past it to let the robot with a job onto its station).
+        heading = other.watched_goal == aside.their_goal or (
+            other.aside is not None and other.aside.spot == aside.their_goal
+        )
+        if not heading and not backing:
             return False
         gx, gy = aside.their_goal
         if at_rest_near(other, aside.their_goal, self.arrival_m):
