@@ -292,6 +292,27 @@ def test_reference_along_from_a_stop_nanometres_inside_a_slower_zone():
     assert_valid(floor, ref, stop, rest[-1], v_max=0.77, a_max=0.71)
 
 
+def test_reference_along_from_a_stop_a_nanometre_short_of_a_waypoint():
+    # Fuzz case s41-0045 (tests/path_cases/README.md): r01 stopped 1 nm short of a waypoint;
+    # the leg there overlaps no region by more than OVERLAP_TOL (judged as a point), gave no
+    # timed piece, and the reference began at the waypoint, not at the stop: the self-check
+    # failed ("does not start at the start") on 194 of the follower's commands.
+    floor = load_floor(
+        FilePath(__file__).resolve().parent / "path_cases" / "nanometre_first_leg.toml"
+    )
+    planner = PathPlanner(floor, v_max=1.49, a_max=1.26)
+    stop = (-14.887263226, -6.572625114)
+    rest = [(-14.887263227, -6.572625114), (-14.487098498, -7.772126549)]
+    ref = planner.reference_along(stop, rest, dt=0.1, t0=0.0)
+    assert_valid(floor, ref, stop, rest[-1], v_max=1.49, a_max=1.26)
+    assert np.array_equal(ref.positions[0], stop)
+    # The same a nanometre short of the goal: the last leg folds into the one before.
+    end = (rest[-1][0] + 1e-9, rest[-1][1])
+    ref = planner.reference_along(rest[0], [rest[-1], end], dt=0.1, t0=0.0)
+    assert_valid(floor, ref, rest[0], end, v_max=1.49, a_max=1.26)
+    assert np.array_equal(ref.positions[-1], end)
+
+
 def test_a_step_too_short_to_overlap_a_region_is_judged_where_it_starts():
     limits = SpeedLimits(hall(), 1.0)
     # 1.2 nm across the line x = 4 between two regions: longer than OVERLAP_TOL, but in

@@ -138,21 +138,32 @@ class Timing:
         """Straight pieces of constant limit: split at corners and where the limit changes."""
         pieces: list[_Piece] = []
         wp = path.waypoints
-        for a, b in zip(wp[:-1], wp[1:], strict=True):
+        # A leg too short to overlap any region (judged as a point) is folded into the next, or
+        # the last into the one before, so the samples start and end exactly at the path's ends
+        # (fuzz s41-0045: a 1 nm first leg gave no piece, and the reference began 1 nm off its
+        # start, failing the self-check on 194 of the follower's commands).
+        a = wp[0]
+        for b in wp[1:]:
             d = b - a
             L = math.hypot(d[0], d[1])
             if L <= OVERLAP_TOL:
                 continue
-            u = d / L
             parts = self._limits.stretches(a, b)
             if parts is None:  # pragma: no cover - paths are checked when planned
                 raise FleetError(f"path leg {a} -> {b} leaves the free space (bug)")
+            if not parts:
+                continue
+            u = d / L
             spans = _merge_spans([[s0, s1, lim] for s0, s1, lim in parts], u, dt)
             accel = self.a_max / float(np.abs(u).max())
             for s0, s1, lim in spans:
                 p0 = a if s0 == 0.0 else a + d * (s0 / L)
                 p1 = b if s1 == L else a + d * (s1 / L)
                 pieces.append(_Piece(p0, p1, u, s1 - s0, speed_along(lim, u), accel))
+            a = b
+        if pieces and not np.array_equal(pieces[-1].p1, wp[-1]):
+            last = pieces[-1]
+            pieces[-1] = replace(last, p1=wp[-1], length=math.dist(last.p0, wp[-1]))
         return pieces
 
     def _step_counts(self, pieces: list[_Piece], dt: float) -> list[int]:
