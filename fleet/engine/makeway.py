@@ -13,6 +13,8 @@ the stuck robot. It holds the spot until the robot it made way for has a new goa
 (`PASSED_FACTOR`), is at rest at its goal (`ARRIVED_M`), or lost its agent, for
 `HOLD_FACTOR` deadlock periods at most; then it goes on with its job, or home as idle robots
 do (or stays, without `return_home`). A job assigned or taken away meanwhile ends the wait.
+One that the robot it made way for names as a blocker (its route changed) moves off the new
+route, or ends its wait.
 
 A robot with no spot off the stuck robot's route (shut in by the stuck robot itself) has the
 stuck robot back off its way instead (`MakeWay._back_off`). If that finds no spot either because
@@ -286,9 +288,35 @@ class MakeWay(Spots):
         aside = robot.aside
         if aside is not None and not self._still_needed(robot, aside, t):
             robot.aside = aside = None
+        if aside is not None and self._in_their_way(robot, aside, t):
+            aside = self._move_on(robot, aside, t)
         if aside is not None:
             return aside.spot
         return self._own_goal(robot)
+
+    def _in_their_way(self, robot: RobotState, aside: Aside, t: float) -> bool:
+        """Whether `robot`, aside, is named a blocker by the robot it made way for (its route
+        changed since: it backed off, or drove round), at most once a deadlock period."""
+        other = self.robots[aside.made_way_for]
+        return robot.id in other.blockers and t >= (
+            self._asked.get((robot.id, other.id), -math.inf) + self.retry_s
+        )
+
+    def _move_on(self, robot: RobotState, aside: Aside, t: float) -> Aside | None:
+        """Send `robot` to a spot off the route the robot it made way for takes now, or end its
+        wait if there is none. Fuzz s101-0970: r02 and r03, aside for r07 going home, stood
+        between it and home once r07 had backed off past them, and held their spots for the
+        rest of the 120-s hold while r07 named them as blockers."""
+        other = self.robots[aside.made_way_for]
+        self._asked[(robot.id, other.id)] = t
+        goal = other.watched_goal or aside.their_goal
+        spot = self._spot(robot, other, self._route(other, goal))
+        if spot is None:
+            robot.aside = None
+        else:
+            job = "" if other.job is None else other.job.job.id
+            self._send_aside(robot, other, spot, goal, job, t)
+        return robot.aside
 
     @staticmethod
     def _own_goal(robot: RobotState) -> tuple[float, float] | None:
