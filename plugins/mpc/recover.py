@@ -1,4 +1,6 @@
-"""What the controller does when a solve gives no usable plan (`fall_back`).
+"""What the controller does when a solve gives no usable plan (`fall_back`), or when it stops
+with no solve: no goal, or no path to it (`stop`: braking, or the previous plan one step on
+where braking would leave the floor).
 
 The previous plan one step on, if the robot is on it and (with other robots about and
 ``avoid_robots``) that keeps clear of every neighbour's predicted position, between the steps
