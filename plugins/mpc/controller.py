@@ -44,7 +44,7 @@ from fleet_plugins.mpc.options import (
     check_options,
     default_reuse_ticks,
 )
-from fleet_plugins.mpc.recover import fall_back
+from fleet_plugins.mpc.recover import fall_back, stop
 from fleet_plugins.mpc.refine import refine_milp
 from fleet_plugins.mpc.reuse import RepeatWatch, clear_of_all, on_plan, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
@@ -89,27 +89,22 @@ class MPCController(Controller):
     progress (±`corridor` chords) plus the region the previous plan used there, and only those
     whose bounding box meets the reachable box of the step: a handful of binaries per solve.
 
-    Other robots (`Observation.neighbours`, with ``avoid_robots``): each one whose predicted square
-    can come within reach of the plan adds binaries for the four sides of the square of half-width
-    ``r_i + r_j + separation_margin_m`` round its predicted centre (its plan interpolated at each
-    step's time), one of which must hold over each group of steps (`separation`). The margin is
-    soft (a heavy cost), contact is not. With ``respect_priority``, a robot keeps clear of the
-    robots that outrank it (higher priority; on a tie, the smaller robot id), and of the robots it
-    outranks only when they are parked for the whole horizon or close (`neighbours` says why); with
-    a moving lower robot close it does not solve but follows its previous plan while that keeps
-    clear, else brakes (unless braking runs into a robot standing still: then it solves); at rest
-    with a higher robot close, it shows a plan that sets it off a tick before it moves (`start`). A
-    moving robot's square covers both its plan and its braking path (it may drop its plan at its
-    next tick). The nearest ``max_neighbours`` robots are constrained, then any other the plan runs
-    into, solving again (`crowd`: in a crowd the plan ran through the fourth or fifth).
+    Other robots (`Observation.neighbours`, with ``avoid_robots``): each whose predicted square
+    (its plan and braking path) can come within reach of the plan adds binaries for the four sides
+    of the square of half-width ``r_i + r_j + separation_margin_m`` round its predicted centre, one
+    of which must hold over each group of steps (`separation`; the margin is soft, contact is not).
+    With ``respect_priority``, a robot keeps clear of higher robots, and of lower ones only when
+    parked or close; held by a close moving lower one it follows its plan or brakes, and at rest it
+    shows its start a tick early (`neighbours`, `start`). The nearest ``max_neighbours`` robots are
+    constrained, then any other the plan runs into (`crowd`).
 
-    When a solve gives no usable solution (node limit without incumbent, the wall-clock guard,
-    infeasible, solver error) the controller falls back (`recover`): the previous plan shifted by
-    one step if the robot is on it and it keeps clear of every neighbour's predicted position,
-    between the steps too (it ends at rest), else braking (`fallback.brake`: kept in the free
-    space; with neighbours about, its path is the plan). It then plans a new trip, as it does
-    after a plan that keeps it at rest off its goal with nobody about (`fallback.stays_put`).
-    Each solved tick's command carries a `SolveReport`.
+    A solve with no usable solution (node limit without incumbent, the wall-clock guard,
+    infeasible, solver error) falls back (`recover.fall_back`) to the previous plan one step on if
+    the robot is on it and it keeps clear of the neighbours, else to braking (`fallback.brake`); a
+    new trip follows, as after a plan that keeps it at rest off its goal with nobody about
+    (`fallback.stays_put`). With no goal, or no path to it, it brakes, or follows its plan where
+    braking would leave the floor or a zone's limit (`recover.stop`). Each solved tick's command
+    carries a `SolveReport`.
 
     Parameters
     ----------
@@ -267,21 +262,20 @@ class MPCController(Controller):
         started = time.perf_counter()
         spec = self.context.spec
         if obs.goal is None:
-            self._goal = self._trip = self._model = self._last = None
-            return brake(obs, spec, self.horizon, ControlStatus.IDLE, self.context.floor)
+            self._goal = self._trip = self._model = None
+            return self._stop(obs, ControlStatus.IDLE)
         goal = (float(obs.goal[0]), float(obs.goal[1]))
         if parked(obs, goal, spec.radius):
             return park(obs, spec, self.horizon)  # at rest on the goal: staying is optimal
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
-            return brake(obs, spec, self.horizon, ControlStatus.FALLBACK, self.context.floor)
+            return self._stop(obs, ControlStatus.FALLBACK)
         assert self._trip is not None and self._model is not None
         hold = self.respect_priority and self.avoid_robots
         hold = hold and must_hold(obs, spec, self.horizon, self.separation_margin_m)
         if self._reusable(obs, hold):
             return self._reuse(obs)
-        # A close lower robot relies on this one's plan or braking path: no solve, unless the
-        # braking path runs into a robot standing still (it may be held too, and not give way)
-        # or out of the free space.
+        # A close lower robot relies on this one's plan or braking path: no solve, unless that
+        # runs into a robot standing still (held too, it may not give way) or off the floor.
         if hold and not brake_runs_into(obs, spec, self.horizon, self.context.floor):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
@@ -462,10 +456,16 @@ class MPCController(Controller):
     # -- fallbacks ------------------------------------------------------------------------------
     def _fallback(self, obs: Observation, report: SolveReport) -> Command:
         """The shifted previous plan or braking (`recover.fall_back`); then a new trip."""
-        here, self._model = self._on_plan(obs), None  # (None: plan a new trip next tick)
-        ctx = self.context
+        ctx, here, self._model = self.context, self._on_plan(obs), None  # (a new trip next tick)
         command, self._last = fall_back(
             obs, ctx.spec, self.horizon, ctx.floor, self._last, here, self.avoid_robots, report
         )
         self._last_t = obs.t if self._last is not None else self._last_t
         return command
+
+    def _stop(self, obs: Observation, status: ControlStatus) -> Command:
+        """Brake, or follow the previous plan where braking leaves the floor (`recover.stop`)."""
+        ctx, here = self.context, self._on_plan(obs)
+        cmd, self._last = stop(obs, ctx.spec, self.horizon, ctx.floor, self._last, here, status)
+        self._last_t = obs.t if self._last is not None else self._last_t
+        return cmd

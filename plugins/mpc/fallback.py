@@ -35,6 +35,7 @@ __all__ = [
     "brake",
     "free_brake",
     "within_zones",
+    "leaves_floor",
     "braking_path",
     "stays_put",
     "park",
@@ -59,16 +60,21 @@ ZONE_TOL = 1e-9
 
 
 def follow_previous(
-    obs: Observation, last: Solution, dt: float, report: SolveReport
+    obs: Observation,
+    last: Solution,
+    dt: float,
+    report: SolveReport | None,
+    status: ControlStatus = ControlStatus.FALLBACK,
 ) -> tuple[Command, Solution]:
-    """The previous plan's next input, as a FALLBACK command whose plan is the rest of it;
-    and that plan moved one step on, to be followed again should the next solve fail too."""
+    """The previous plan's next input, as a command (FALLBACK unless `status` says otherwise)
+    whose plan is the rest of it; and that plan moved one step on, to be followed again should
+    the next solve fail too."""
     assert last.u is not None
     later = shifted(last)
     assert later.p is not None
     u = last.u[1]
     plan = plan_points(obs.t, later.p, dt)
-    return Command(float(u[0]), float(u[1]), ControlStatus.FALLBACK, plan, report), later
+    return Command(float(u[0]), float(u[1]), status, plan, report), later
 
 
 def shifted(last: Solution) -> Solution:
@@ -230,6 +236,16 @@ def within_zones(
     v = np.abs(np.diff(xy, axis=0)) / spec.period
     lim, _ = _limits(floor, spec.v_max).of_segments(xy[:-1], xy[1:])
     return bool(np.all(v <= lim + ZONE_TOL))
+
+
+def leaves_floor(obs: Observation, spec: RobotSpec, floor: Floor | None) -> bool:
+    """Whether braking from `obs` would leave the `floor`: every brake of `free_brake` leaves
+    its free space, or the one `brake` takes breaks a zone's speed limit (`within_zones`).
+    False at rest or without a floor (nothing is known of walls or zones then)."""
+    if floor is None or max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED:
+        return False
+    found = free_brake(obs, spec, floor)
+    return found is None or not within_zones(floor, spec, found[2])
 
 
 @functools.lru_cache(maxsize=8)

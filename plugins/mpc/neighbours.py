@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fleet.plugins import Neighbour, Observation, RobotSpec
-from fleet_plugins.mpc.fallback import REST_SPEED, braking_path, free_brake, within_zones
+from fleet_plugins.mpc.fallback import REST_SPEED, braking_path, leaves_floor
 from fleet_plugins.mpc.separation import Obstacle, at_rest, predict, reaches
 
 if TYPE_CHECKING:
@@ -236,10 +236,8 @@ def brake_runs_into(
     at 0.605 m/s against 0.52 (fuzz s21-0854)."""
     if max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED:
         return False
-    if floor is not None:
-        found = free_brake(obs, spec, floor)
-        if found is None or not within_zones(floor, spec, found[2]):
-            return True
+    if leaves_floor(obs, spec, floor):
+        return True
     dt = spec.period
     stop = np.array(braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, spec.a_max, horizon))
     p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])

@@ -1,4 +1,6 @@
-"""What the controller does when a solve gives no usable plan (`fall_back`).
+"""What the controller does when a solve gives no usable plan (`fall_back`), or when it stops
+with no solve: no goal, or no path to it (`stop`: braking, or the previous plan one step on
+where braking would leave the floor).
 
 The previous plan one step on, if the robot is on it and (with other robots about and
 ``avoid_robots``) that keeps clear of every neighbour's predicted position, between the steps
@@ -22,11 +24,11 @@ import numpy as np
 
 from fleet.floor import Floor
 from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveReport
-from fleet_plugins.mpc.fallback import brake, follow_previous, free_brake
+from fleet_plugins.mpc.fallback import brake, follow_previous, free_brake, leaves_floor
 from fleet_plugins.mpc.model import Solution
 from fleet_plugins.mpc.neighbours import clear_of_neighbours
 
-__all__ = ["fall_back"]
+__all__ = ["fall_back", "stop"]
 
 
 def fall_back(
@@ -54,3 +56,26 @@ def fall_back(
         return follow_previous(obs, last, spec.period, report)
     cmd = brake(obs, spec, horizon, ControlStatus.FALLBACK, floor)
     return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report), None
+
+
+def stop(
+    obs: Observation,
+    spec: RobotSpec,
+    horizon: int,
+    floor: Floor | None,
+    last: Solution | None,
+    on_plan: bool,
+    status: ControlStatus,
+) -> tuple[Command, Solution | None]:
+    """The command with `status` for a robot that is to stop with no solve (no goal, or no
+    path to it), and the plan to keep as the last one: braking (`fallback.brake`, None kept),
+    unless braking leaves the `floor` (`fallback.leaves_floor`) while the robot is `on_plan`:
+    then `last` one step on, which ends at rest in the regions and zone limits it was solved
+    in. A robot whose job was handed back while its plan turned along an obstacle's face
+    braked straight on into the obstacle's clearance and stood there (the state of fuzz
+    s91-0042 with no goal; tests/test_mpc_stop.py); so did one given a goal it had no path to.
+    """
+    if on_plan and leaves_floor(obs, spec, floor):
+        assert last is not None
+        return follow_previous(obs, last, spec.period, None, status)
+    return brake(obs, spec, horizon, status, floor), None
