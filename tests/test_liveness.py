@@ -155,6 +155,12 @@ def judged(case: str, tmp_path: Path, confirm: bool = True) -> list:
         # for the rest of the 120-s hold: r07 3.1 m from home for the last 90 s. A robot
         # aside that the one it made way for names as a blocker now moves off its new route.
         "aside_behind_a_backed_off_robot",
+        # Fuzz seed 31 (s31-0698, found after the s31-0037 fix): period 0.2 s, seven homes
+        # 0.77 m apart. r01, going home, backed off for r03 parked in its way, and r03 was sent
+        # to a spot 0.66 m from the one r07 had been sent to in the same tick: r03 never got
+        # there, r01 waited for it and r02, r04, r07 for r01 to the end of the hold, r02 2.1 m
+        # from home for the last 90 s. A spot is now clear of the spots others are sent to.
+        "spot_beside_another_spot",
     ],
 )
 def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:

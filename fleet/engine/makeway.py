@@ -8,7 +8,8 @@ stuck robot with a job, idle ones, stuck ones of lower priority not at their own
 one printing on the stuck robot's goal whose part is done later than the stuck robot's,
 `MakeWay` sends each to a spot off the stuck robot's route: the nearest of a few rings of
 candidates round it that lies in the free space, keeps `AWAY_M` plus both radii from the route
-and the stuck robot's goal, is clear of the other robots and is reached without closing in on
+and the stuck robot's goal, is clear of the other robots and of the spots others are sent to,
+and is reached without closing in on
 the stuck robot. It holds the spot until the robot it made way for has a new goal, is past
 (`PASSED_FACTOR`), is at rest at its goal (`ARRIVED_M`), or lost its agent, for
 `HOLD_FACTOR` deadlock periods at most; then it goes on with its job, or home as idle robots
@@ -170,6 +171,14 @@ class Spots:
             for o in self.robots.values()
             if o is not robot and o is not stuck and o.id not in ignore
         ] + [(x, y, robot.spec.radius + r + OTHERS_M) for x, y, r in avoid]
+        # Clear of the spots others are on their way to, too (fuzz s31-0698: r03, the parked
+        # robot let out of a ring, was sent to a spot 0.66 m from the one r07 had just been
+        # sent to; it never got there, and r01, backed off for it, waited out the hold).
+        others += [
+            (*o.aside.spot, robot.spec.radius + o.spec.radius + OTHERS_M)
+            for o in self.robots.values()
+            if o.aside is not None and o is not robot and o is not stuck and o.id not in ignore
+        ]
         # Each candidate is compared only with the robots within its gap on both axes (a
         # hair more: `_SURE_M`); those further off on either axis cannot be within it.
         table = np.array(others, dtype=float).reshape(-1, 3)
