@@ -20,7 +20,7 @@ from shapely.geometry import LineString, Polygon, box
 from fleet.floor import FloorSpec, Obstacle, SpeedZone, compile_floor
 from fleet.plugins import ControlStatus, Neighbour, Observation, RobotSpec
 from fleet.plugins.robot import DoubleIntegrator
-from fleet_plugins.mpc.fallback import brake, free_brake, stays_put, within_zones
+from fleet_plugins.mpc.fallback import brake, braking_path, free_brake, stays_put, within_zones
 from fleet_plugins.mpc.neighbours import brake_runs_into
 from tests.scripts import load_script
 
@@ -194,3 +194,32 @@ def test_a_speed_under_the_rest_threshold_is_cancelled_not_left_to_drift(neighbo
     assert (vx, vy) == (0.0, 0.0)
     assert bool(cmd.plan) == bool(neighbours)
     assert all((x, y) == (obs.x, obs.y) for _, x, y in cmd.plan)
+
+
+def test_a_fallback_brake_keeps_out_of_a_slower_zone_when_another_brake_can() -> None:
+    # 80 MPC robots on the fleet scenario (seed 1, with neighbours.ahead_in_queue): r39's solve
+    # at 87 s was infeasible at (1.0, 0.379) m/s, and braking along its line of travel took it
+    # into a 0.4 m/s zone at 0.875 m/s (4 samples); braking both axes at the full rate stays out.
+    spec = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
+    floor = compile_floor(
+        FloorSpec(
+            source="<zone above>",
+            name="zone above",
+            boundary=box(0.0, 20.0, 30.0, 30.0),
+            default_v_max=(1.0, 1.0),
+            clearance=spec.radius,
+            zones=(SpeedZone("slow", box(19.0, 25.9, 30.0, 30.0), (0.4, 0.4)),),
+        )
+    )
+    obs = Observation("r39", 348, 87.0, 19.301, 25.589, 1.0, 0.379)
+    cmd = brake(obs, spec, HORIZON, ControlStatus.FALLBACK, floor)
+    x, y, vx, vy = obs.x, obs.y, obs.vx, obs.vy
+    path = [(obs.t, x, y)]
+    robot = DoubleIntegrator(spec.period, spec.a_max)
+    x, y, vx, vy = robot.step(x, y, vx, vy, cmd.ax, cmd.ay)
+    path.append((obs.t + spec.period, x, y))
+    assert within_zones(floor, spec, tuple(path))
+    assert within_zones(floor, spec, free_brake(obs, spec, floor)[2])
+    # Not vacuous: straight on, the robot enters the zone too fast.
+    straight = braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, spec.period, spec.a_max, 100)
+    assert not within_zones(floor, spec, straight)
