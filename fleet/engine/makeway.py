@@ -9,13 +9,12 @@ one printing on the stuck robot's goal whose part is done later than the stuck r
 `MakeWay` sends each to a spot off the stuck robot's route: the nearest of a few rings of
 candidates round it that lies in the free space, keeps `AWAY_M` plus both radii from the route
 and the stuck robot's goal, is clear of the other robots and of the spots others are sent to,
-and is reached without closing in on
-the stuck robot. It holds the spot until the robot it made way for has a new goal, is past
-(`PASSED_FACTOR`), is at rest at its goal (`ARRIVED_M`), or lost its agent, for
-`HOLD_FACTOR` deadlock periods at most; then it goes on with its job, or home as idle robots
-do (or stays, without `return_home`). A job assigned or taken away meanwhile ends the wait.
-One that the robot it made way for names as a blocker (its route changed) moves off the new
-route, or ends its wait.
+and is reached without closing in on the stuck robot. It holds the spot until the robot it
+made way for has a new goal, is past (`PASSED_FACTOR`), is at rest at its goal (`ARRIVED_M`),
+or lost its agent, for `HOLD_FACTOR` deadlock periods at most; then it goes on with its job,
+or home as idle robots do (or stays, without `return_home`). A job assigned or taken away
+meanwhile ends the wait. One that the robot it made way for names as a blocker (its route
+changed) moves off the new route, or ends its wait.
 
 A robot with no spot off the stuck robot's route (shut in by the stuck robot itself) has the
 stuck robot back off its way instead (`MakeWay._back_off`). If that finds no spot either because
