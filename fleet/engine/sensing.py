@@ -236,23 +236,31 @@ class Sensing:
                 or t - r.progress_s >= HOME_ASK_FACTOR * after - 1e-9
             )
         )
+        waiting = self.make_way.queue.waiting
         movable = [
             o
             for o in near
-            if asks
-            and o.in_service
-            # Idle robots ask one way only (two going home asked each other in turn), but
-            # any robot asks one parked for good, which would never give way otherwise.
-            and (r.job is not None or priority[o.id] < priority[r.id] or _parked(o, tol))
+            if o.in_service
             and (
-                o.job is None
+                # A robot waiting its turn for a station will not leave by itself either.
+                waiting(o)
                 or (
-                    _no_progress(o, t, after / 2)
-                    and priority[o.id] < priority[r.id]
-                    and o.goal is not None
-                    and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
+                    asks
+                    # Idle robots ask one way only (two going home asked each other in turn),
+                    # but any robot asks one parked for good, which would never give way
+                    # otherwise.
+                    and (r.job is not None or priority[o.id] < priority[r.id] or _parked(o, tol))
+                    and (
+                        o.job is None
+                        or (
+                            _no_progress(o, t, after / 2)
+                            and priority[o.id] < priority[r.id]
+                            and o.goal is not None
+                            and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
+                        )
+                        or _prints_on_longer(o, r, goal, t + after, tol)
+                    )
                 )
-                or _prints_on_longer(o, r, goal, t + after, tol)
             )
         ]
         stalled = bool(blockers or movable)

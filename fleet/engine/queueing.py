@@ -1,0 +1,89 @@
+"""Queueing at stations: a robot with a job waits its turn short of a station, not round it.
+
+Robots bound for one station used to crowd round it, each as close as the others let it: the
+robot on it could then not leave, and the deadlock watch took a back-off or two to let it out
+(fuzz s101-0767, s101-0884: five to seven robots round one station in a small room, idle
+robots kept aside or short of home for 90 s, jobs done a minute late). Now a robot with a job
+for a station stops short of it while another robot with a job for the same station is nearer
+it (on it, or queueing closer): it heads for where it can brake to rest at once, and waits
+there until it is the nearest. The robot ahead thus always has `WAIT_GAP_M` plus a footprint of
+room round it to leave by, and the one that waited goes next. A robot waiting its turn steps
+aside for any robot stuck beside it (`StationQueue.waiting`), as an idle one does: it will not
+leave by itself.
+
+Spots are where the robot would stop, so a run stays reproducible (no random draws).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+from fleet.engine.motion import RobotState
+from fleet.floor import Floor
+
+__all__ = ["StationQueue", "WAIT_GAP_M"]
+
+#: Room (m) a robot waiting its turn leaves round the robot ahead of it, on top of the two radii
+#: and one more footprint of the robot ahead: a way out past the one waiting.
+WAIT_GAP_M = 0.5
+
+
+class StationQueue:
+    """Holds robots with a job short of a station another robot with a job there is nearer."""
+
+    def __init__(self, floor: Floor, robots: Mapping[str, RobotState]) -> None:
+        self.floor = floor
+        self.robots = robots
+        #: Robots waiting their turn: the station each waits for and the spot it waits at.
+        self._waits: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {}
+
+    def goal_of(
+        self, robot: RobotState, goal: tuple[float, float] | None
+    ) -> tuple[float, float] | None:
+        """Where `robot`, heading for `goal`, heads now: the spot it waits its turn at while a
+        robot ahead of it goes to the same station, else `goal`."""
+        if goal is None or robot.job is None or goal != robot.goal or not self._behind(robot, goal):
+            self._waits.pop(robot.id, None)
+            return goal
+        waits = self._waits.get(robot.id)
+        if waits is None or waits[0] != goal:
+            waits = (goal, self._stop_at(robot))
+            self._waits[robot.id] = waits
+        return waits[1]
+
+    def waiting(self, robot: RobotState) -> bool:
+        """Whether `robot` waits its turn for a station (it will not leave by itself)."""
+        return robot.id in self._waits and robot.aside is None
+
+    def _behind(self, robot: RobotState, station: tuple[float, float]) -> bool:
+        """Whether another robot with a job for `station` is nearer it than `robot`, and `robot`
+        is within its reach (where braking to rest leaves `WAIT_GAP_M` plus a footprint of room
+        round the other, were it on the station); the robot with the smaller id first when both
+        are as near."""
+        sx, sy = station
+        gap = math.hypot(robot.x - sx, robot.y - sy)
+        speed = math.hypot(robot.vx, robot.vy)
+        brake = speed * speed / (2.0 * robot.spec.a_max)
+        for o in self.robots.values():
+            if o is robot or o.job is None or o.goal != station or not o.in_service:
+                continue
+            if o.aside is not None:
+                continue  # it heads elsewhere for now
+            reach = robot.spec.radius + 3.0 * o.spec.radius + WAIT_GAP_M
+            if gap > reach + brake:
+                continue
+            theirs = math.hypot(o.x - sx, o.y - sy)
+            if (theirs, o.id) < (gap, robot.id):
+                return True
+        return False
+
+    def _stop_at(self, robot: RobotState) -> tuple[float, float]:
+        """Where `robot` comes to rest braking straight on (each axis at a_max), if that lies in
+        the free space; else where it stands."""
+        a = robot.spec.a_max
+        x = robot.x + robot.vx * abs(robot.vx) / (2.0 * a)
+        y = robot.y + robot.vy * abs(robot.vy) / (2.0 * a)
+        if self.floor.is_free(x, y):
+            return (x, y)
+        return (robot.x, robot.y)
