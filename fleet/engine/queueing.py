@@ -52,9 +52,10 @@ class StationQueue:
             self._waits[robot.id] = waits
         return waits[1]
 
-    def waiting(self, robot: RobotState) -> bool:
-        """Whether `robot` waits its turn for a station (it will not leave by itself)."""
-        return robot.id in self._waits and robot.aside is None
+    def station_of(self, robot: RobotState) -> tuple[float, float] | None:
+        """The station `robot` waits its turn for (None: it does not wait)."""
+        waits = self._waits.get(robot.id)
+        return None if waits is None or robot.aside is not None else waits[0]
 
     def _behind(self, robot: RobotState, station: tuple[float, float]) -> bool:
         """Whether another robot with a job for `station` is nearer it than `robot`, and `robot`

@@ -97,7 +97,9 @@ class Sensing:
         for r in robots:
             goal = self.make_way.goal_of(r, t)
             aside = r.aside
-            self._watch_progress(r, goal, t, tol, priority)
+            # Waiting its turn short of a station, it still waits for the station: stuck there
+            # as if beside it (a robot printing on it may have to let it go first).
+            self._watch_progress(r, self.make_way.queue.station_of(r) or goal, t, tol, priority)
             if r.aside is not None and r.aside is not aside:
                 # Sent aside by its own watch (it gave way, or backs off): it heads for the
                 # spot from this tick on, and the robots that blocked its way to `goal` block
@@ -236,14 +238,16 @@ class Sensing:
                 or t - r.progress_s >= HOME_ASK_FACTOR * after - 1e-9
             )
         )
-        waiting = self.make_way.queue.waiting
+        queue = self.make_way.queue
+        mine = queue.station_of(r)
         movable = [
             o
             for o in near
             if o.in_service
             and (
-                # A robot waiting its turn for a station will not leave by itself either.
-                waiting(o)
+                # A robot waiting its turn for a station will not leave by itself either
+                # (unless this one waits for the same station, behind or ahead of it).
+                queue.station_of(o) not in (None, mine)
                 or (
                     asks
                     # Idle robots ask one way only (two going home asked each other in turn),
