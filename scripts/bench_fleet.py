@@ -18,9 +18,10 @@ processes, and robot-steps per second of a large follower fleet.
    the contiguous shares `fleet run --workers 2` uses, with interleaved shares (r01, r03, ...
    and r02, r04, ...), with a snake deal (r01, r04, r05, r08, ... and r02, r03, r06, r07, ...),
    greedy by each robot's total work (known beforehand, heaviest first to the lighter worker),
-   with the best fixed split a local search finds in hindsight, with the best split of every
-   single round, and with 3, 4 or 8 workers sharing the 2 cores. ``--rate`` sets the job rate
-   (a busy fleet spreads the work); ``--seed`` the scenario's seed.
+   with the best fixed split a local search finds in hindsight, with robots moved every 4 rounds
+   by their past work, with each round's steps handed to the worker free first, with the best
+   split of every single round, and with 3, 4 or 8 workers sharing the 2 cores. ``--rate``
+   sets the job rate (a busy fleet spreads the work); ``--seed`` the scenario's seed.
 
 4. With ``--sweep N [N ...]``: the MPC fleet at each size (issue 16), for ``--duration`` (120)
    simulated seconds with jobs at ``--per-robot-rate`` (120) per robot-hour. Per size: contacts
