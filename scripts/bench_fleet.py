@@ -14,11 +14,14 @@ processes, and robot-steps per second of a large follower fleet.
 3. With ``--balance``: why 2 workers cannot double the MPC fleet's pace. The fleet runs in this
    process once, every controller step and bid timed per robot and round; printed: how many robots
    solve per round, each robot's share of the work, and the speed-up of 2 workers over 1 that
-   the lockstep allows (every round waits for its slowest worker) with the contiguous shares
-   `fleet run --workers 2` uses, with interleaved shares (r01, r03, ... and r02, r04, ...), with
-   the best fixed split (each robot's total work known beforehand, heaviest first to the
-   lighter worker), with the best split of every single round, and with 3, 4 or 8 workers
-   sharing the 2 cores. ``--rate`` sets the job rate (a busy fleet spreads the work).
+   the lockstep allows (every round waits for its slowest worker), strict and pipelined, with
+   the contiguous shares `fleet run --workers 2` uses, with interleaved shares (r01, r03, ...
+   and r02, r04, ...), with a snake deal (r01, r04, r05, r08, ... and r02, r03, r06, r07, ...),
+   greedy by each robot's total work (known beforehand, heaviest first to the lighter worker),
+   with the best fixed split a local search finds in hindsight, with robots moved every 4 rounds
+   by their past work, with each round's steps handed to the worker free first, with the best
+   split of every single round, and with 3, 4 or 8 workers sharing the 2 cores. ``--rate``
+   sets the job rate (a busy fleet spreads the work); ``--seed`` the scenario's seed.
 
 4. With ``--sweep N [N ...]``: the MPC fleet at each size (issue 16), for ``--duration`` (120)
    simulated seconds with jobs at ``--per-robot-rate`` (120) per robot-hour. Per size: contacts
@@ -31,7 +34,8 @@ Nothing is asserted: the figures go in notes and the README.
 
     python scripts/bench_fleet.py [--minutes 30] [--robots 20] [--workers 0 1 2]
         [--lockstep strict pipelined] [--rate 4800] [--skip-baseline]
-    python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200]
+    python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200] [--robots 40]
+        [--lockstep pipelined] [--seed 2]
     python scripts/bench_fleet.py --sweep 10 20 40 80 [--duration 120] [--per-robot-rate 120]
         [--out runs/sweep] [--options reuse_ticks=4] [--seed 2]
 """
@@ -66,9 +70,10 @@ def run(scenario, workers: int) -> tuple[dict, float]:
     return summary, setup
 
 
-def balance(scenario) -> None:
-    """Time every controller step and bid of an in-process run per robot and round (CPU time);
-    print how the work would spread over 2 workers."""
+def time_work(scenario) -> tuple[list[str], np.ndarray, float, dict]:
+    """Run `scenario` in this process, every controller step and bid timed per robot and round
+    (CPU time): ``(robots, work, engine, summary)``, `work` seconds per round (row) and robot
+    (column), `engine` the CPU seconds of the rest of the run."""
     world = World(scenario)
     assert world.host is not None
     costs: dict[tuple[str, int], float] = {}
@@ -98,8 +103,15 @@ def balance(scenario) -> None:
     work = np.zeros((len(ticks), len(robots)))
     for (robot, tick), c in costs.items():
         work[at[tick], index[robot]] = c
+    return robots, work, cpu - float(work.sum()), summary
+
+
+def balance(scenario) -> None:
+    """Time every controller step and bid of an in-process run per robot and round (CPU time);
+    print how the work would spread over 2 workers."""
+    robots, work, engine, summary = time_work(scenario)
+    index = {r: j for j, r in enumerate(robots)}
     total = float(work.sum())
-    engine = cpu - total  # the engine's own serial share (CPU time)
     solving = (work > 2e-3).sum(axis=1)  # robots that solved or bid (> 2 ms) in the round
 
     def lockstep(shares: list[list[str]]) -> float:
@@ -107,15 +119,20 @@ def balance(scenario) -> None:
         per_share = [work[:, [index[r] for r in share]].sum(axis=1) for share in shares]
         return float(np.maximum(*per_share).sum())
 
-    contiguous = lockstep(split_robots(robots, 2))
-    interleaved = lockstep([robots[0::2], robots[1::2]])
-    fixed: list[list[str]] = [[], []]
-    loads = [0.0, 0.0]
-    for c, r in sorted(zip(work.sum(axis=0), robots, strict=True), reverse=True):
-        lighter = int(loads[1] < loads[0])
-        fixed[lighter].append(r)
-        loads[lighter] += c
-    best_fixed = lockstep(fixed)
+    side = greedy_sides(work.sum(axis=0))
+    fixed = [[r for r, s in zip(robots, side, strict=True) if s == k] for k in (False, True)]
+    splits = {
+        "contiguous shares (what `--workers 2` uses)": split_robots(robots, 2),
+        "interleaved shares (r01, r03, ... and r02, r04, ...)": [robots[0::2], robots[1::2]],
+        # Dealt in turn, every other pass backwards: neighbours in id order (which start side
+        # by side, start stations cycled) go to different workers.
+        "snake deal (r01, r04, r05, r08, ... and r02, r03, r06, r07, ...)": [
+            robots[0::4] + robots[3::4],
+            robots[1::4] + robots[2::4],
+        ],
+        "greedy by each robot's total work (known beforehand)": fixed,
+        "best fixed split found (hindsight)": best_fixed_split(work, robots, fixed[0]),
+    }
     # No split can beat, in any round, half the round's work or its heaviest robot.
     best = float(np.maximum(work.sum(axis=1) / 2, work.max(axis=1)).sum())
     print(
@@ -130,11 +147,34 @@ def balance(scenario) -> None:
     )
     heavy = sorted(zip(work.sum(axis=0), robots, strict=True), reverse=True)[:5]
     print("heaviest robots: " + ", ".join(f"{r} {c / total:.0%}" for c, r in heavy))
-    print(f"speed-up of 2 workers over 1 the lockstep allows (engine share {engine:.1f} s):")
-    print(f"  contiguous shares: {(engine + total) / (engine + contiguous):.2f}")
-    print(f"  interleaved shares: {(engine + total) / (engine + interleaved):.2f}")
-    print(f"  best fixed split (known beforehand): {(engine + total) / (engine + best_fixed):.2f}")
-    print(f"  best split of every round: {(engine + total) / (engine + best):.2f}")
+    # Pipelined, the engine steps while the workers compute: at best each run takes the longer
+    # of the two (per round, which these totals can only bound).
+    print(
+        f"speed-up of 2 workers over 1 the lockstep allows (engine share {engine:.1f} s), "
+        "strict / pipelined with the engine hidden:"
+    )
+    times = {label: lockstep(shares) for label, shares in splits.items()}
+    # Robots moved between workers every 4 rounds, greedy by their work in the rounds before
+    # (decayed by 0.8 a round): what moving them by their past load could buy.
+    side, recent, moved = np.arange(len(robots)) >= len(robots) / 2, np.zeros(len(robots)), 0.0
+    for k, row in enumerate(work):
+        if k and k % 4 == 0:
+            side = greedy_sides(recent)
+        moved += max(row[side].sum(), row[~side].sum())
+        recent = 0.8 * recent + row
+    times["robots moved every 4 rounds by their past work"] = moved
+    # Any worker computes any robot's step: each goes, in id order, to the worker free first.
+    stolen = 0.0
+    for row in work:
+        free = [0.0, 0.0]
+        for c in row:
+            free[int(free[1] < free[0])] += c
+        stolen += max(free)
+    times["steps shared out within each round (id order)"] = stolen
+    times["best split of every round"] = best
+    for label, t in times.items():
+        strict = (engine + total) / (engine + t)
+        print(f"  {label}: {strict:.2f} / {max(engine, total) / max(engine, t):.2f}")
     # More workers than cores: the system shares the 2 cores among them, so a round lasts as
     # long as its busiest worker or half its work, whichever is longer (ideal time-sharing).
     for w in (3, 4, 8):
@@ -143,12 +183,39 @@ def balance(scenario) -> None:
         print(
             f"  {w} workers sharing 2 cores, contiguous: {(engine + total) / (engine + shared):.2f}"
         )
-    # Pipelined, the engine steps while the workers compute: at best each run takes the longer
-    # of the two (per round, which these totals can only bound).
-    print(
-        "  pipelined, contiguous shares, engine hidden: "
-        f"{max(engine, total) / max(engine, contiguous):.2f}"
-    )
+
+
+def greedy_sides(loads: np.ndarray) -> np.ndarray:
+    """Each robot's worker (of 2, as False / True), heaviest `loads` first to the lighter one."""
+    side = np.zeros(len(loads), dtype=bool)
+    sums = [0.0, 0.0]
+    for j in np.argsort(-loads, kind="stable"):
+        side[j] = sums[1] < sums[0]
+        sums[int(side[j])] += loads[j]
+    return side
+
+
+def best_fixed_split(work: np.ndarray, robots: list[str], start: list[str]) -> list[list[str]]:
+    """A split of the robots (columns of `work`) over 2 workers that no single move of a robot
+    or swap of two improves, judged by the lockstep's time (the slower worker of each round,
+    summed): hindsight, about the most a fixed split could have bought in this run. A local
+    search from `start` (the first worker's robots), so a local optimum, not proven best."""
+    side = np.array([r not in start for r in robots])
+    while True:
+        a, b = work[:, ~side].sum(axis=1), work[:, side].sum(axis=1)
+        now = np.maximum(a, b).sum()
+        d = np.where(side, -work, work)  # moving robot k shifts d[:, k] from a to b
+        moves = np.maximum(a[:, None] - d, b[:, None] + d).sum(axis=0)
+        i, j = np.nonzero(side[:, None] != side[None, :])
+        swap_d = d[:, i] + d[:, j]
+        swaps = np.maximum(a[:, None] - swap_d, b[:, None] + swap_d).sum(axis=0)
+        if moves.min() >= now - 1e-9 and (swaps.size == 0 or swaps.min() >= now - 1e-9):
+            return [[r for r, s in zip(robots, side, strict=True) if s == k] for k in (False, True)]
+        if swaps.size and swaps.min() < moves.min():
+            k = int(np.argmin(swaps))
+            side[[i[k], j[k]]] = ~side[[i[k], j[k]]]
+        else:
+            side[int(np.argmin(moves))] ^= True
 
 
 def closest_approach(world: World) -> tuple[float, str, str, float]:

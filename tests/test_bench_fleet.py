@@ -2,6 +2,7 @@
 
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from fleet.engine.recorder import Trajectory
@@ -43,3 +44,15 @@ def test_robots_that_stay_apart_give_their_least_distance_less_the_radii() -> No
     w = world({"r1": [(0.0, 0.0), (1.0, 0.0)], "r2": [(0.0, 1.5), (1.0, 1.0)]})
     gap, a, b, t = bench.closest_approach(w)
     assert gap == pytest.approx(1.0 - 0.8) and t == pytest.approx(0.25)
+
+
+def test_the_best_fixed_split_parts_robots_that_work_in_the_same_rounds() -> None:
+    bench = load_script("bench_fleet")
+    robots = ["r01", "r02", "r03", "r04"]
+    # r01 and r02 work in round 0, r03 and r04 in round 1: together on one worker, each round
+    # waits for both (4 in all); parted, for one (2 in all).
+    work = np.array([[1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0]])
+    shares = bench.best_fixed_split(work, robots, ["r01", "r02"])
+    assert sorted(shares[0] + shares[1]) == robots
+    for pair in (("r01", "r02"), ("r03", "r04")):
+        assert len(set(pair) & set(shares[0])) == 1, shares
