@@ -32,9 +32,13 @@ WAIT_GAP_M = 0.5
 class StationQueue:
     """Holds robots with a job short of a station another robot with a job there is nearer."""
 
-    def __init__(self, floor: Floor, robots: Mapping[str, RobotState]) -> None:
+    def __init__(
+        self, floor: Floor, robots: Mapping[str, RobotState], enabled: bool = True
+    ) -> None:
         self.floor = floor
         self.robots = robots
+        #: `Scenario.station_queue`: off, every robot heads straight for its goal.
+        self.enabled = enabled
         #: Robots waiting their turn: the station each waits for and the spot it waits at.
         self._waits: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {}
 
@@ -43,7 +47,13 @@ class StationQueue:
     ) -> tuple[float, float] | None:
         """Where `robot`, heading for `goal`, heads now: the spot it waits its turn at while a
         robot ahead of it goes to the same station, else `goal`."""
-        if goal is None or robot.job is None or goal != robot.goal or not self._behind(robot, goal):
+        if (
+            not self.enabled
+            or goal is None
+            or robot.job is None
+            or goal != robot.goal
+            or not self._behind(robot, goal)
+        ):
             self._waits.pop(robot.id, None)
             return goal
         waits = self._waits.get(robot.id)

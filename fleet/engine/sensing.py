@@ -239,14 +239,16 @@ class Sensing:
             )
         )
         queue = self.make_way.queue
-        mine = queue.station_of(r)
+        # The station this one is bound for: robots waiting for it are its rivals, not robots
+        # in its way (fuzz s91-0106 with the queue: two robots bound for one station sent each
+        # other aside, and both held their spots for the whole hold).
+        mine = r.goal if r.job is not None else None
         movable = [
             o
             for o in near
             if o.in_service
             and (
-                # A robot waiting its turn for a station will not leave by itself either
-                # (unless this one waits for the same station, behind or ahead of it).
+                # A robot waiting its turn for a station will not leave by itself either.
                 queue.station_of(o) not in (None, mine)
                 or (
                     asks
