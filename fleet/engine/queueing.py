@@ -74,8 +74,7 @@ class StationQueue:
         are as near."""
         sx, sy = station
         gap = math.hypot(robot.x - sx, robot.y - sy)
-        speed = math.hypot(robot.vx, robot.vy)
-        brake = speed * speed / (2.0 * robot.spec.a_max)
+        brake = _travel(robot)
         for o in self.robots.values():
             if o is robot or o.job is None or o.goal != station or not o.in_service:
                 continue
@@ -98,3 +97,10 @@ class StationQueue:
         if self.floor.is_free(x, y):
             return (x, y)
         return (robot.x, robot.y)
+
+
+def _travel(robot: RobotState) -> float:
+    """How far (m) `robot` may go before it is at rest: a period on at its speed (it is looked
+    at once a period), then braking (each axis at a_max, along the line of travel)."""
+    speed = math.hypot(robot.vx, robot.vy)
+    return speed * robot.spec.period + speed * speed / (2.0 * robot.spec.a_max)

@@ -278,8 +278,21 @@ def brake_runs_into(
     p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, horizon)
-        if at_rest(centres) and closest_approach(p, centres) < spec.radius + float(n.radius):
-            return True
+        reach = spec.radius + float(n.radius)
+        if at_rest(centres):
+            if closest_approach(p, centres) < reach:
+                return True
+        elif not outranks(obs, n):
+            # A higher robot keeps its course or brakes, and counts on this one to keep clear
+            # of both: so must this brake (held for a lower robot behind it, a robot braked
+            # into the way of a higher one that had stopped yielding to it and braked short of
+            # the station it waited its turn for: tests/test_queueing.py).
+            stop = np.array(
+                braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, n.limits(spec).a_max, horizon)
+            )
+            theirs = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], len(p) - len(stop), 0)])
+            if min(closest_approach(p, centres), closest_approach(p, theirs)) < reach:
+                return True
     return False
 
 
