@@ -161,6 +161,12 @@ def judged(case: str, tmp_path: Path, confirm: bool = True) -> list:
         # there, r01 waited for it and r02, r04, r07 for r01 to the end of the hold, r02 2.1 m
         # from home for the last 90 s. A spot is now clear of the spots others are sent to.
         "spot_beside_another_spot",
+        # Fuzz seed 101 (s101-0767): period 0.98 s, seven robots, four jobs via st3, beside a
+        # narrow way between a wall and an obstacle. Crowding round st3 they boxed in the robot
+        # on it, and r04, idle, stood 7.8 m from home for the last 90 s (two jobs late). Robots
+        # now wait their turn short of a station another robot with a job is nearer
+        # (`fleet.engine.queueing`): 6 deadlocks instead of 8, every job within the run.
+        "queue_by_a_narrow_way",
     ],
 )
 def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
@@ -329,7 +335,9 @@ def test_a_robot_that_gives_way_keeps_its_job() -> None:
     # its observation still showed its job's goal and its other blockers (r02, r04, r05), the
     # follower found no way round them and handed the job back, and its print began anew
     # elsewhere: one job undone at 300 s. A robot sent aside by its own watch now heads for
-    # the spot in that tick, with no blockers named.
+    # the spot in that tick, with no blockers named. (Run as found, robots crowding round the
+    # stations: `station_queue = false`. Waiting their turn short of them, no robot gives way
+    # here, and three of the 14 jobs end after the 300 s, at 316-392 s.)
     folder = CASES / "gave_way_handed_back"
     world = World(load_scenario(folder / "scen.toml"))
     s = world.run().summary
@@ -349,6 +357,7 @@ def test_a_robot_that_cannot_reach_its_spot_aside_is_let_by() -> None:
     # it never got nearer, r03 waited for it, and both (and r04, r05 aside round them) stood
     # still for the last 110 s, a job undone. A robot aside that got no nearer its spot for a
     # deadlock period now has the robot it made way for back off its way, as one with no spot.
+    # (Run as found, `station_queue = false`: waiting their turn, the robots never get there.)
     folder = CASES / "aside_past_the_stuck_one"
     world = World(load_scenario(folder / "scen.toml"))
     s = world.run().summary

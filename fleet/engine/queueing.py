@@ -100,7 +100,6 @@ class StationQueue:
 
 
 def _travel(robot: RobotState) -> float:
-    """How far (m) `robot` may go before it is at rest: a period on at its speed (it is looked
-    at once a period), then braking (each axis at a_max, along the line of travel)."""
+    """How far (m) `robot` goes braking to rest (each axis at a_max, along the line of travel)."""
     speed = math.hypot(robot.vx, robot.vy)
-    return speed * robot.spec.period + speed * speed / (2.0 * robot.spec.a_max)
+    return speed * speed / (2.0 * robot.spec.a_max)
