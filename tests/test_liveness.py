@@ -174,6 +174,18 @@ def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
     assert findings == [], "\n".join(map(str, findings))
 
 
+def test_a_crowd_for_a_station_in_a_small_room_leaves_no_robot_stuck(tmp_path: Path) -> None:
+    # Fuzz seed 101 (s101-0884): period 0.61 s, eight robots, six jobs via or to st3, a station
+    # against an obstacle in a room 11 m by 8 m with one door. Crowding round st3, the robots
+    # boxed in the one on it; r03, idle once it delivered there, was sent aside for r02 and
+    # held its spot for 90 s while r02 backed off in turn, then aside again for r01, 21 m from
+    # home for the last 90 s. Waiting their turn short of st3 (`fleet.engine.queueing`), no
+    # robot is stuck; two jobs end after the 240 s (the room is still crowded: late, not stuck).
+    findings = judged("queue_in_a_room", tmp_path)
+    failing = [f for f in findings if f.kind != "job_late"]
+    assert failing == [], "\n".join(map(str, failing))
+
+
 def test_a_crowd_at_a_pocket_mouth_lets_the_robot_parked_in_it_out(tmp_path: Path) -> None:
     # Fuzz seed 91 (s91-0106, run cut from 240 to 280 s): r03, idle (no return home), parks on
     # st2, a station in a pocket open only to the north; r05, with a job via st2, stands at

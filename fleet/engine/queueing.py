@@ -6,10 +6,11 @@ robot on it could then not leave, and the deadlock watch took a back-off or two 
 robots kept aside or short of home for 90 s, jobs done a minute late). Now a robot with a job
 for a station stops short of it while another robot with a job for the same station is nearer
 it (on it, or queueing closer): it heads for where it can brake to rest at once, and waits
-there until it is the nearest. The robot ahead thus always has `WAIT_GAP_M` plus a footprint of
-room round it to leave by, and the one that waited goes next. A robot waiting its turn steps
-aside for any robot stuck beside it (`StationQueue.waiting`), as an idle one does: it will not
-leave by itself.
+there until it is the nearest. The robot ahead thus has a footprint of room round it to leave
+by (and `WAIT_GAP_M` more, braking as the robot behind may), and the one that waited goes next.
+The deadlock watch (`fleet.engine.sensing`) still watches the station for a robot waiting its
+turn (`StationQueue.station_of`), and such a robot steps aside, as an idle one does, for any
+robot stuck beside it that is not bound for the same station: it will not leave by itself.
 
 Spots are where the robot would stop, so a run stays reproducible (no random draws).
 """
