@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
+import shapely
+
 from fleet.engine.motion import RobotState
 from fleet.floor import Floor
 
@@ -40,6 +42,8 @@ class StationQueue:
         self.robots = robots
         #: `Scenario.station_queue`: off, every robot heads straight for its goal.
         self.enabled = enabled
+        #: The free space shrunk by each robot radius: where a robot may wait (`_in_the_open`).
+        self._open: dict[float, shapely.Geometry] = {}
         #: Robots waiting their turn: the station each waits for and the spot it waits at.
         self._waits: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {}
 
@@ -59,7 +63,10 @@ class StationQueue:
             return goal
         waits = self._waits.get(robot.id)
         if waits is None or waits[0] != goal:
-            waits = (goal, self._stop_at(robot))
+            spot = self._stop_at(robot)
+            if not self._in_the_open(spot, robot.spec.radius):
+                return goal  # not in a door or a narrow way: on to where it may wait
+            waits = (goal, spot)
             self._waits[robot.id] = waits
         return waits[1]
 
@@ -88,6 +95,17 @@ class StationQueue:
             if (theirs, o.id) < (gap, robot.id):
                 return True
         return False
+
+    def _in_the_open(self, spot: tuple[float, float], radius: float) -> bool:
+        """Whether `spot` has a radius of free space (the robots' centres' space) all round it:
+        a robot waiting in a door or a way one robot wide shuts it (fuzz s21-0301 with the
+        queue: robots waiting their turn in the door 2 m from the station held the way out)."""
+        shrunk = self._open.get(radius)
+        if shrunk is None:
+            shrunk = self.floor.free_space.buffer(-radius)
+            shapely.prepare(shrunk)
+            self._open[radius] = shrunk
+        return bool(shrunk.contains(shapely.Point(spot)))
 
     def _stop_at(self, robot: RobotState) -> tuple[float, float]:
         """Where `robot` comes to rest braking straight on (each axis at a_max), if that lies in
