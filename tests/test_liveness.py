@@ -180,13 +180,14 @@ def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
     "robot stuck in the crowd up to the 120-s hold; open (docs/fleet.md)",
 )
 def test_a_crowd_for_a_station_in_a_small_room_leaves_no_robot_stuck(tmp_path: Path) -> None:
-    # Fuzz seed 101 (s101-0884): period 0.61 s, eight robots, six jobs via or to st3, a station
-    # against an obstacle in a room 11 m by 8 m with one door. Crowding round st3, the robots
-    # boxed in the one on it; r03, idle once it delivered there, was sent aside for r02 and
-    # held its spot for 90 s while r02 backed off in turn, then aside again for r01, 21 m from
-    # home for the last 90 s. Waiting their turn short of st3 (`fleet.engine.queueing`) the
-    # robots crowd less, but r04, idle, sent aside for r06 and then for r02 (stuck in the crowd
-    # by the door), holds its spot 14 m from home from 132 s to the end.
+    # Fuzz seed 101 (s101-0884): period 0.61 s, eight robots, eight of ten jobs via or to st3,
+    # a station against an obstacle in a room 11 m by 8 m with one door. Crowding round st3,
+    # the robots boxed in the one on it; r03, idle once it delivered there, was sent aside for
+    # r02 and held its spot for 90 s while r02 backed off in turn, then aside again for r01,
+    # 21 m from home for the last 90 s. Waiting their turn short of st3
+    # (`fleet.engine.queueing`) the robots crowd less, but r04, idle, sent aside for r06 and
+    # then for r02 (stuck in the crowd by the door), holds its spot 14 m from home from 132 s
+    # to the end.
     findings = judged("queue_in_a_room", tmp_path)
     failing = [f for f in findings if f.kind != "job_late"]
     assert failing == [], "\n".join(map(str, failing))
