@@ -65,7 +65,7 @@ class StationQueue:
         if waits is None or waits[0] != goal:
             spot = self._stop_at(robot)
             if not self._in_the_open(spot, robot.spec.radius):
-                return goal  # not in a door or a narrow way: on to where it may wait
+                return goal  # in a door or a narrow way: it drives on to where it may wait
             waits = (goal, spot)
             self._waits[robot.id] = waits
         return waits[1]

@@ -258,7 +258,8 @@ def brake_runs_into(
     obs: Observation, spec: RobotSpec, horizon: int, floor: Floor | None = None
 ) -> bool:
     """Whether braking along the line of travel would bring this robot into contact with a
-    neighbour predicted at rest for the horizon, between the samples too; or, given the
+    neighbour predicted at rest for the horizon, or with the plan or the braking path of a
+    moving one that outranks it, between the samples too; or, given the
     `floor`, whether every brake of `fallback.free_brake` would leave its free space, or the
     one it takes break a zone's speed limit (`fallback.within_zones`). Such a
     robot may be held itself (`must_hold`: it only brakes, at rest it stays) and never give
@@ -284,9 +285,10 @@ def brake_runs_into(
                 return True
         elif not outranks(obs, n):
             # A higher robot keeps its course or brakes, and counts on this one to keep clear
-            # of both: so must this brake (held for a lower robot behind it, a robot braked
-            # into the way of a higher one that had stopped yielding to it and braked short of
-            # the station it waited its turn for: tests/test_queueing.py).
+            # of both: so must this brake (found with a first version of the station queue:
+            # three robots in a lane to one station, the middle one, held for the lowest,
+            # braked into the way of the highest, which had stopped yielding to it to wait
+            # its turn: 7 mm of contact).
             stop = np.array(
                 braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, n.limits(spec).a_max, horizon)
             )
