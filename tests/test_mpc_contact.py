@@ -558,7 +558,9 @@ def test_a_held_mpc_robot_never_brakes_into_a_robot_standing_still() -> None:
                       neighbours=(r37, r15, r39), priority=46)  # fmt: skip
     assert must_hold(obs, spec, 25, 0.1)  # r39 is close: r35 holds
     assert brake_runs_into(obs, spec, 25)  # and its braking path runs into r37
-    assert not brake_runs_into(replace(obs, neighbours=(r15, r39)), spec, 25)
+    assert not brake_runs_into(replace(obs, neighbours=(r39,)), spec, 25)
+    # r15 outranks r35 and drives across its braking path: braking is no way out from it either.
+    assert brake_runs_into(replace(obs, neighbours=(r15, r39)), spec, 25)
     controller = MPCController()
     controller.reset(ControllerContext("r35", spec, floor, PathPlanner(floor, 1.0, 0.5)))
     cmd = controller.compute(obs)

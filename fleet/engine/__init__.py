@@ -5,6 +5,7 @@ it needs passed in: `placement` (start spots, reachability checks), `motion` (th
 delayed inputs, turning in place), `jobs` (job records and where jobs come from), `lifecycle`
 (release, print start, arrival, delivery, judging), `dispatch` (assignments, auctions,
 hand-backs), `sensing` (observations, neighbours and their plans, priorities, deadlock watch),
+`makeway` and `queueing` (robots stepping aside, and waiting their turn short of a station),
 `rounds` (the bus round), `breakdowns` (robots failing and repaired). `agents` runs the robot
 agents' processes; `safety` judges every step; `recorder` keeps what happened and writes the
 run directory, `summary` makes summary.json and the CSV rows from it. The engine may import

@@ -38,6 +38,7 @@ import shapely
 from shapely.geometry import LineString, Point
 
 from fleet.engine.motion import RobotState, at_rest_near
+from fleet.engine.queueing import StationQueue
 from fleet.engine.recorder import Recorder
 from fleet.errors import NoPathError
 from fleet.floor import Floor
@@ -269,6 +270,7 @@ class MakeWay(Spots):
         planner_for: Callable[[RobotSpec], PathPlanner],
         deadlock_after_s: float | None,
         arrival_m: float = ARRIVED_M,
+        station_queue: bool = True,
     ) -> None:
         super().__init__(floor, robots, planner_for)
         self.recorder = recorder
@@ -286,6 +288,8 @@ class MakeWay(Spots):
         self._looked: dict[str, tuple[float, tuple[str, ...]]] = {}
         #: What `idle_on_route` last found for each robot, and where everyone stood then.
         self._idle_seen: dict[str, tuple[tuple, tuple[str, ...]]] = {}
+        #: Robots with a job wait their turn short of a station (`fleet.engine.queueing`).
+        self.queue = StationQueue(floor, robots, station_queue)
 
     def goal_of(self, robot: RobotState, t: float) -> tuple[float, float] | None:
         """Where `robot` heads now: nowhere while broken down, its spot aside while it still
@@ -300,7 +304,7 @@ class MakeWay(Spots):
             aside = self._move_on(robot, aside, t)
         if aside is not None:
             return aside.spot
-        return self._own_goal(robot)
+        return self.queue.goal_of(robot, self._own_goal(robot))
 
     def _in_their_way(self, robot: RobotState, aside: Aside, t: float) -> bool:
         """Whether `robot`, aside, is named a blocker by the robot it made way for (its route
@@ -370,6 +374,10 @@ class MakeWay(Spots):
                     self._back_off(stuck, robot, goal, route, t)
                 continue
             if t < self._asked.get(pair, -math.inf) + self.retry_s:
+                continue
+            if stuck.aside is not None and stuck.aside.made_way_for == robot.id:
+                # `stuck` waits aside for `robot` itself: sent aside in turn, each would hold its
+                # spot for the other for the whole hold (two robots in a queue for one station).
                 continue
             self._asked[pair] = t
             if route is None:

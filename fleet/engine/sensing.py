@@ -97,7 +97,9 @@ class Sensing:
         for r in robots:
             goal = self.make_way.goal_of(r, t)
             aside = r.aside
-            self._watch_progress(r, goal, t, tol, priority)
+            # Waiting its turn short of a station, it still waits for the station: stuck there
+            # as if beside it (a robot printing on it may have to let it go first).
+            self._watch_progress(r, self.make_way.queue.station_of(r) or goal, t, tol, priority)
             if r.aside is not None and r.aside is not aside:
                 # Sent aside by its own watch (it gave way, or backs off): it heads for the
                 # spot from this tick on, and the robots that blocked its way to `goal` block
@@ -236,23 +238,35 @@ class Sensing:
                 or t - r.progress_s >= HOME_ASK_FACTOR * after - 1e-9
             )
         )
+        queue = self.make_way.queue
+        # The station this one is bound for: robots waiting for it are its rivals, not robots
+        # in its way (fuzz s91-0106 with the queue: two robots bound for one station sent each
+        # other aside, and both held their spots for the whole hold).
+        mine = r.goal if r.job is not None else None
         movable = [
             o
             for o in near
-            if asks
-            and o.in_service
-            # Idle robots ask one way only (two going home asked each other in turn), but
-            # any robot asks one parked for good, which would never give way otherwise.
-            and (r.job is not None or priority[o.id] < priority[r.id] or _parked(o, tol))
+            if o.in_service
             and (
-                o.job is None
+                # A robot waiting its turn for a station will not leave by itself either.
+                queue.station_of(o) not in (None, mine)
                 or (
-                    _no_progress(o, t, after / 2)
-                    and priority[o.id] < priority[r.id]
-                    and o.goal is not None
-                    and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
+                    asks
+                    # Idle robots ask one way only (two going home asked each other in turn),
+                    # but any robot asks one parked for good, which would never give way
+                    # otherwise.
+                    and (r.job is not None or priority[o.id] < priority[r.id] or _parked(o, tol))
+                    and (
+                        o.job is None
+                        or (
+                            _no_progress(o, t, after / 2)
+                            and priority[o.id] < priority[r.id]
+                            and o.goal is not None
+                            and math.hypot(o.goal[0] - o.x, o.goal[1] - o.y) > tol
+                        )
+                        or _prints_on_longer(o, r, goal, t + after, tol)
+                    )
                 )
-                or _prints_on_longer(o, r, goal, t + after, tol)
             )
         ]
         stalled = bool(blockers or movable)

@@ -180,6 +180,7 @@ class World:
             self.planner_for,
             scenario.deadlock_after_s,
             scenario.arrival_tolerance_m,
+            scenario.station_queue,
         )
         self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning, make_way)
         rounds = PipelinedRounds if scenario.bus.lockstep == "pipelined" else BusRounds

@@ -244,6 +244,9 @@ class Scenario:
     #: A robot that gets no closer to its goal for this long (s) while robots stand close is
     #: deadlocked (None: no detection).
     deadlock_after_s: float | None = 30.0
+    #: Robots with a job wait their turn short of a station another robot with a job is
+    #: nearer (`fleet.engine.queueing`); False: they crowd round it.
+    station_queue: bool = True
     arrival_tolerance_m: float = 0.05
     sensing_radius_m: float = 0.0  # > 0: observations list the robots this close (nearest 8)
     #: Per-axis speed cap (m/s) of each print task kind; kinds not listed are not capped.
@@ -507,6 +510,7 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         bus_address=bus.address,
         bus=BusConfig(bus.timeout_s, bus.lost_after_s, bus.max_message_bytes, bus.lockstep),
         deadlock_after_s=sc.deadlock_after_s or None,
+        station_queue=sc.station_queue,
         arrival_tolerance_m=sc.arrival_tolerance_m,
         sensing_radius_m=sc.sensing_radius_m,
         print_caps=caps,

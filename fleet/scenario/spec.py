@@ -115,6 +115,13 @@ class ScenarioTable(_Table, kw_only=True):
         NonNegative,
         Meta(description="No progress for this long (s) with robots close by: a deadlock; 0: off."),
     ] = 30.0
+    station_queue: Annotated[
+        bool,
+        Meta(
+            description="Robots with a job wait their turn short of a station that another "
+            "robot with a job is nearer; false: they crowd round it."
+        ),
+    ] = True
     latency: _Latency = "none"
     warmup_s: Annotated[
         NonNegative,

@@ -258,7 +258,8 @@ def brake_runs_into(
     obs: Observation, spec: RobotSpec, horizon: int, floor: Floor | None = None
 ) -> bool:
     """Whether braking along the line of travel would bring this robot into contact with a
-    neighbour predicted at rest for the horizon, between the samples too; or, given the
+    neighbour predicted at rest for the horizon, or with the plan or the braking path of a
+    moving one that outranks it, between the samples too; or, given the
     `floor`, whether every brake of `fallback.free_brake` would leave its free space, or the
     one it takes break a zone's speed limit (`fallback.within_zones`). Such a
     robot may be held itself (`must_hold`: it only brakes, at rest it stays) and never give
@@ -278,8 +279,22 @@ def brake_runs_into(
     p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, horizon)
-        if at_rest(centres) and closest_approach(p, centres) < spec.radius + float(n.radius):
-            return True
+        reach = spec.radius + float(n.radius)
+        if at_rest(centres):
+            if closest_approach(p, centres) < reach:
+                return True
+        elif not outranks(obs, n):
+            # A higher robot keeps its course or brakes, and counts on this one to keep clear
+            # of both: so must this brake (found with a first version of the station queue:
+            # three robots in a lane to one station, the middle one, held for the lowest,
+            # braked into the way of the highest, which had stopped yielding to it to wait
+            # its turn: 7 mm of contact).
+            stop = np.array(
+                braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, n.limits(spec).a_max, horizon)
+            )
+            theirs = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], len(p) - len(stop), 0)])
+            if min(closest_approach(p, centres), closest_approach(p, theirs)) < reach:
+                return True
     return False
 
 
