@@ -193,6 +193,17 @@ def test_a_crowd_for_a_station_in_a_small_room_leaves_no_robot_stuck(tmp_path: P
     assert failing == [], "\n".join(map(str, failing))
 
 
+def test_robots_waiting_their_turn_keep_out_of_the_door_by_the_station(tmp_path: Path) -> None:
+    # Fuzz seed 21 (s21-0301) on a first version of the station queue: period 0.25 s, eight
+    # robots, three rooms joined by doors one robot wide, the station 2 m south of one. Robots
+    # waiting their turn stopped in that door and shut the way out: r04, idle, was sent aside
+    # again and again within 2.1 m, 12 m from home, for the last 90 s. A robot now waits only
+    # where its centre has a radius of free space all round it (jobs still end late here).
+    findings = judged("queue_by_a_door", tmp_path, confirm=False)
+    failing = [f for f in findings if f.kind != "job_not_done"]
+    assert failing == [], "\n".join(map(str, failing))
+
+
 def test_a_crowd_at_a_pocket_mouth_lets_the_robot_parked_in_it_out(tmp_path: Path) -> None:
     # Fuzz seed 91 (s91-0106, run cut from 240 to 280 s): r03, idle (no return home), parks on
     # st2, a station in a pocket open only to the north; r05, with a job via st2, stands at
