@@ -46,6 +46,20 @@ class StationQueue:
         self._open: dict[float, shapely.Geometry] = {}
         #: Robots waiting their turn: the station each waits for and the spot it waits at.
         self._waits: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {}
+        #: The robots in service with a job, by where it sends them (`snapshot`): the ones a
+        #: robot may be behind, without a pass over the whole fleet for each robot.
+        self._bound: dict[tuple[float, float], list[RobotState]] = {}
+
+    def snapshot(self) -> None:
+        """Note where each robot's job sends it, once per round before its robots' goals are
+        asked for (`fleet.engine.sensing`): jobs change between rounds, not within one."""
+        self._bound = {}
+        if not self.enabled:
+            return
+        for o in self.robots.values():
+            goal = o.goal
+            if goal is not None and o.in_service:
+                self._bound.setdefault(goal, []).append(o)
 
     def goal_of(
         self, robot: RobotState, goal: tuple[float, float] | None
@@ -83,11 +97,9 @@ class StationQueue:
         sx, sy = station
         gap = math.hypot(robot.x - sx, robot.y - sy)
         brake = _travel(robot)
-        for o in self.robots.values():
-            if o is robot or o.job is None or o.goal != station or not o.in_service:
-                continue
-            if o.aside is not None:
-                continue  # it heads elsewhere for now
+        for o in self._bound.get(station, ()):
+            if o is robot or o.aside is not None:
+                continue  # itself, or one heading elsewhere for now
             reach = robot.spec.radius + 3.0 * o.spec.radius + WAIT_GAP_M
             if gap > reach + brake:
                 continue

@@ -94,6 +94,7 @@ class Sensing:
         )
         out = []
         tol = self.scenario.arrival_tolerance_m
+        self.make_way.queue.snapshot()
         for r in robots:
             goal = self.make_way.goal_of(r, t)
             aside = r.aside
