@@ -119,8 +119,7 @@ def balance(scenario) -> None:
         per_share = [work[:, [index[r] for r in share]].sum(axis=1) for share in shares]
         return float(np.maximum(*per_share).sum())
 
-    side = greedy_sides(work.sum(axis=0))
-    fixed = [[r for r, s in zip(robots, side, strict=True) if s == k] for k in (False, True)]
+    fixed = shares_of(robots, greedy_sides(work.sum(axis=0)))
     splits = {
         "contiguous shares (what `--workers 2` uses)": split_robots(robots, 2),
         "interleaved shares (r01, r03, ... and r02, r04, ...)": [robots[0::2], robots[1::2]],
@@ -185,6 +184,11 @@ def balance(scenario) -> None:
         )
 
 
+def shares_of(robots: list[str], side: np.ndarray) -> list[list[str]]:
+    """The two workers' robots, from each robot's worker (False / True)."""
+    return [[r for r, s in zip(robots, side, strict=True) if s == k] for k in (False, True)]
+
+
 def greedy_sides(loads: np.ndarray) -> np.ndarray:
     """Each robot's worker (of 2, as False / True), heaviest `loads` first to the lighter one."""
     side = np.zeros(len(loads), dtype=bool)
@@ -210,7 +214,7 @@ def best_fixed_split(work: np.ndarray, robots: list[str], start: list[str]) -> l
         swap_d = d[:, i] + d[:, j]
         swaps = np.maximum(a[:, None] - swap_d, b[:, None] + swap_d).sum(axis=0)
         if moves.min() >= now - 1e-9 and (swaps.size == 0 or swaps.min() >= now - 1e-9):
-            return [[r for r, s in zip(robots, side, strict=True) if s == k] for k in (False, True)]
+            return shares_of(robots, side)
         if swaps.size and swaps.min() < moves.min():
             k = int(np.argmin(swaps))
             side[[i[k], j[k]]] = ~side[[i[k], j[k]]]
