@@ -14,13 +14,16 @@ import pytest
 from fleet.engine import World
 from fleet.errors import PluginError
 from fleet.plugins import ControlStatus, Observation, load_controller
+from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet.printing import CapSchedule
 from fleet.scenario import PluginChoice
 from fleet_plugins.mpc import MPCController
+from fleet_plugins.mpc.neighbours import brake_runs_into, must_hold
 from fleet_plugins.mpc.reuse import RepeatWatch
 from tests.test_fleet import mpc_fleet_run, mpc_fleet_scenario
 from tests.test_mpc import L_HALL, SPEC_1S, Loop, l_hall
 from tests.test_mpc_fleet import CONTACT, Run, crossing, far_away, parked
+from tests.test_queueing import run as run_to_one_station
 
 
 def unsolved_runs(solved: list[bool]) -> list[int]:
@@ -194,3 +197,47 @@ def test_a_robot_waiting_at_the_margin_of_a_parked_one_keeps_its_plan() -> None:
     assert np.max(np.abs(run.v)) <= 1e-9 and abs(run.p[0] - 9.1) < 1e-6  # at the margin
     assert sum(c.solve is not None for c in waiting) <= len(waiting) // 4
     assert min(run.gaps) >= CONTACT + 0.1 - 1e-6
+
+
+def test_a_held_robot_follows_its_plan_only_where_it_can_still_brake_a_tick_later(
+    tmp_path, monkeypatch
+) -> None:
+    # Three MPC robots to one station (tests/test_queueing.py): r01 > r02 > r03 converge on
+    # the station's line, r01 and r03 from either side, r02 on it. r03 is close, so r02 is held
+    # (it follows its plan or brakes); r02 is close, so r01 is held too and drives on along its
+    # plan. At 10.0 s r02 followed its plan, braked at 10.25 s, and at 10.5 s its brake ran into
+    # r01's, r01 a tick farther on (0.742 m, radii 0.4): it solved from there, infeasibly, 2
+    # fallbacks; 4 in the run, r01 and r02 0.856 m apart at the closest. Now a held robot follows
+    # its plan only if braking from its next state keeps clear of r01 braking then too
+    # (`reuse.brake_keeps_clear`): r02 braked from 10.0 s; 1 fallback, 0.896 m.
+    # Judged from the engine's observations: whenever a held robot followed its plan, its brake
+    # from there keeps clear of the robots that outrank it a tick on and two ticks on.
+    seen: dict[tuple[str, float], tuple[Observation, bool]] = {}
+    compute = MPCController.compute
+
+    def logged(self: MPCController, obs: Observation):
+        reuses = self.reuses
+        hold = must_hold(obs, self.context.spec, self.horizon, self.separation_margin_m)
+        cmd = compute(self, obs)
+        seen[(obs.robot, round(obs.t, 6))] = (obs, hold and self.reuses > reuses)
+        return cmd
+
+    monkeypatch.setattr(MPCController, "compute", logged)
+    world, summary = run_to_one_station(tmp_path, "mpc", queue=True)
+    assert summary["violations"]["collision"] == 0
+    spec = world.robots["r02"].spec
+    dt, robot = spec.period, DoubleIntegrator(spec.period, spec.a_max)
+    held = 0
+    for (rid, t), (_, reused) in seen.items():
+        on = seen.get((rid, round(t + dt, 6)))
+        later = seen.get((rid, round(t + 2 * dt, 6)))
+        if not reused or on is None or later is None:
+            continue
+        held += 1
+        state = on[0]  # on the plan it followed
+        assert not brake_runs_into(state, spec, 25), (rid, t)
+        ax, ay = brake_input(state.vx, state.vy, dt, spec.a_max)
+        x, y, vx, vy = robot.step(state.x, state.y, state.vx, state.vy, ax, ay)
+        braking = replace(later[0], x=x, y=y, vx=vx, vy=vy)  # a tick into its brake
+        assert not brake_runs_into(braking, spec, 25), (rid, t)
+    assert held >= 10  # not vacuous: held robots followed their plans

@@ -46,7 +46,7 @@ from fleet_plugins.mpc.options import (
 )
 from fleet_plugins.mpc.recover import fall_back, stop
 from fleet_plugins.mpc.refine import refine_milp
-from fleet_plugins.mpc.reuse import RepeatWatch, clear_of_all, on_plan, within_caps
+from fleet_plugins.mpc.reuse import RepeatWatch, on_plan, reusable_among, within_caps
 from fleet_plugins.mpc.separation import Obstacle, Separation, spans
 from fleet_plugins.mpc.start import StartGate
 from fleet_plugins.mpc.trip import Trip
@@ -320,8 +320,8 @@ class MPCController(Controller):
             return False
         if not obs.neighbours or not self.avoid_robots:
             return True
-        p = np.vstack([last.p[1:], last.p[-1:]])
-        return clear_of_all(obs, spec, p, self.separation_margin_m)
+        # Held, it may only brake next tick: its brake must keep clear too.
+        return reusable_among(obs, spec, last, self.separation_margin_m, hold)
 
     def _reuse(self, obs: Observation) -> Command:
         """Follow the previous plan one step on (no solve, no `SolveReport`)."""

@@ -45,6 +45,8 @@ __all__ = [
     "close",
     "must_hold",
     "brake_runs_into",
+    "paths_of",
+    "brake_after",
     "must_announce",
     "shows_start",
     "settling",
@@ -231,7 +233,7 @@ def _length(paths: np.ndarray) -> float:
 def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
     """Whether a moving robot that this one outranks is `close` (their centres could come
     within ``r_i + r_j + margin``). Such a robot relies on this one's published plan or
-    braking path: this one then only follows its plan (while `reuse.clear_of_all`) or brakes,
+    braking path: this one then only follows its plan (while `reuse.reusable_among`) or brakes,
     it does not re-plan."""
     for n in obs.neighbours:
         if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
@@ -296,6 +298,32 @@ def brake_runs_into(
             if min(closest_approach(p, centres), closest_approach(p, theirs)) < reach:
                 return True
     return False
+
+
+def paths_of(obs: Observation, n: Neighbour, spec: RobotSpec, horizon: int) -> list[np.ndarray]:
+    """Where moving neighbour `n` may go, ``(horizon+1, 2)`` each from now: along its plan,
+    braking along its line of travel now, or a tick on along its plan and braking from there
+    (its velocity then taken as its input were constant over the tick: a double integrator,
+    exact where its plan has a sample a tick on)."""
+    dt, a_max = spec.period, n.limits(spec).a_max
+    centres = predict(n, obs.t, dt, horizon)
+    here, now = np.array([n.x, n.y]), np.array([n.vx, n.vy])
+    later = np.clip(2.0 * (centres[1] - here) / dt - now, -spec.v_max, spec.v_max)
+    return [
+        centres,
+        brake_after(obs.t, here, now, dt, a_max, horizon),
+        np.vstack([here, brake_after(obs.t + dt, centres[1], later, dt, a_max, horizon - 1)]),
+    ]
+
+
+def brake_after(
+    t: float, p: np.ndarray, v: np.ndarray, dt: float, a_max: float, steps: int
+) -> np.ndarray:
+    """Positions ``(steps+1, 2)``, one a period from `t`, of braking along the line of travel
+    from `p` at velocity `v` (`fallback.braking_path`), at rest once stopped."""
+    path = braking_path(t, float(p[0]), float(p[1]), float(v[0]), float(v[1]), dt, a_max, steps)
+    stop = np.asarray(path)[:, 1:]
+    return np.vstack([stop, np.repeat(stop[-1:], steps + 1 - len(stop), axis=0)])
 
 
 def clear_of_neighbours(obs: Observation, spec: RobotSpec, p: np.ndarray) -> bool:

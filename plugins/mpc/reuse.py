@@ -7,7 +7,9 @@ the floor's regions and zone limits (the same points, in the same regions), the 
 here against this tick's caps), the end at rest (its last point repeated, at rest), and the
 other robots (checked here with the margin, see `clear_of_all`). So the controller follows it
 for up to ``reuse_ticks`` ticks and solves again on an event: a deviation from the plan, new
-caps the plan breaks, a robot within reach, a new trip, or the plan's age.
+caps the plan breaks, a robot within reach, a new trip, or the plan's age. A robot held for a
+lower one (`neighbours.must_hold`) follows its plan only while braking a tick later would still
+keep clear too (`brake_keeps_clear`): held, braking is its only other move.
 """
 
 from __future__ import annotations
@@ -18,12 +20,21 @@ from fleet.plugins import Observation, RobotSpec
 from fleet.printing import CapSchedule
 from fleet_plugins.mpc.fallback import braking_path
 from fleet_plugins.mpc.model import Solution
-from fleet_plugins.mpc.separation import predict
+from fleet_plugins.mpc.neighbours import brake_after, closest_approach, outranks, paths_of
+from fleet_plugins.mpc.separation import at_rest, predict
 
 #: The measured state must match the previous plan within this (m, m/s) to reuse that plan.
 PLAN_MATCH = 1e-6
 
-__all__ = ["PLAN_MATCH", "within_caps", "clear_of_all", "on_plan", "RepeatWatch"]
+__all__ = [
+    "PLAN_MATCH",
+    "within_caps",
+    "clear_of_all",
+    "brake_keeps_clear",
+    "reusable_among",
+    "on_plan",
+    "RepeatWatch",
+]
 
 #: Tolerance (m/s) of the cap check (the solves' feasibility tolerance is 1e-9).
 _CAP_TOL = 1e-9
@@ -65,6 +76,47 @@ def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float
         if not apart.any(axis=1).all():
             return False
     return True
+
+
+def brake_keeps_clear(
+    obs: Observation, spec: RobotSpec, p: np.ndarray, v: np.ndarray, margin: float
+) -> bool:
+    """Whether braking along the line of travel from the next state of plan `p`, `v` (steps
+    0..N from now) keeps ``r_i + r_j + margin`` (to `PLAN_MATCH`), between the samples too,
+    from every neighbour at rest and from every moving one that outranks this robot, whether
+    it follows its plan, brakes now or brakes a tick later (both robots a tick on, as
+    `neighbours.close` judges).
+
+    A held robot (`neighbours.must_hold`) only follows its plan or brakes; where that brake
+    runs into a higher robot it solves (`brake_runs_into`), a tick late. Three MPC robots to
+    one station (tests/test_mpc_reuse.py): r02, held for r03, followed its plan and braked a
+    tick later, while r01, which outranks it and was held too, drove on a tick along its plan:
+    r02's brake then ran into r01's (0.742 m, radii 0.4) and its solves from there were
+    infeasible (2 fallbacks)."""
+    dt, N = spec.period, len(p) - 1
+    mine = np.vstack([p[:1], brake_after(obs.t + dt, p[1], v[1], dt, spec.a_max, N - 1)])
+    for n in obs.neighbours:
+        centres = predict(n, obs.t, dt, N)
+        if not at_rest(centres) and outranks(obs, n):
+            continue  # a lower robot keeps clear of this one
+        paths = [centres] if at_rest(centres) else paths_of(obs, n, spec, N)
+        half = spec.radius + float(n.radius) + margin - PLAN_MATCH
+        if min(closest_approach(mine, q) for q in paths) < half:
+            return False
+    return True
+
+
+def reusable_among(
+    obs: Observation, spec: RobotSpec, last: Solution, margin: float, hold: bool
+) -> bool:
+    """Whether `last`, one step on, keeps clear of the neighbours for a reuse (`clear_of_all`)
+    and, the robot being held, its brake a tick later too (`brake_keeps_clear`)."""
+    assert last.p is not None and last.v is not None
+    p = np.vstack([last.p[1:], last.p[-1:]])
+    if not clear_of_all(obs, spec, p, margin):
+        return False
+    v = np.vstack([last.v[1:], np.zeros((1, 2))])
+    return not hold or brake_keeps_clear(obs, spec, p, v, margin)
 
 
 def on_plan(obs: Observation, last: Solution | None, last_t: float, dt: float) -> bool:
