@@ -265,13 +265,17 @@ def generate_case(
     controller: str = "both",
     quick: bool = False,
     mpc_options: dict[str, Any] | None = None,
+    fleet: tuple[int, int] | None = None,
 ) -> Case:
     """Case `index` of master seed `seed` (the same pair always gives the same case).
 
     `quick`: a small fleet (1-3 robots, the MPC 1-2) and a short run (the test suite's sample;
     other draws as usual, but the stream differs from the full cases'). `mpc_options`: MPC
     controller options written into an MPC case's scenario (no draw depends on them, so the
-    floors and fleets are the same with and without).
+    floors and fleets are the same with and without). `fleet`: the number of robots is drawn
+    from this range (inclusive) instead, from a stream of its own, so the floor, the
+    controller and the robots' kind are the same case's (the draws after it, the jobs among
+    them, depend on the count).
     """
     rng = random.Random(f"fuzz-floors/{seed}/{index}" + ("/quick" if quick else ""))
     if controller == "both":
@@ -438,6 +442,8 @@ def generate_case(
         count = rng.randrange(1, 3) if mpc else rng.randrange(1, 4)
         period = max(period, 0.25)
         duration = 60 if mpc else 180
+    if fleet is not None:
+        count = random.Random(f"fuzz-floors/{seed}/{index}/fleet").randint(*fleet)
     scen: dict[str, Any] = {
         "scenario": {
             "name": f"fuzz-{seed}-{index}",
@@ -1195,14 +1201,14 @@ def run_folder(
     return out
 
 
-def run_case(
-    args: tuple[int, int, str, str, bool] | tuple[int, int, str, str, bool, dict[str, Any]],
-) -> Outcome:
+def run_case(args: tuple) -> Outcome:
     """Generate case (seed, index) into a scratch folder, run and judge it; on findings copy
-    the folder to `out`. A module-level function, so worker processes can take it."""
+    the folder to `out`. A module-level function, so worker processes can take it. `args`:
+    (seed, index, controller, out, quick[, mpc_options[, fleet]]), as `generate_case`'s."""
     seed, index, controller, out_dir, quick = args[:5]
-    mpc_options: dict[str, Any] = args[5] if len(args) > 5 else {}  # type: ignore[misc]
-    case = generate_case(seed, index, controller, quick, mpc_options)
+    mpc_options: dict[str, Any] = args[5] if len(args) > 5 else {}
+    fleet: tuple[int, int] | None = args[6] if len(args) > 6 else None
+    case = generate_case(seed, index, controller, quick, mpc_options, fleet)
     with tempfile.TemporaryDirectory(prefix="fuzz-floors-") as tmp:
         folder = case.write(Path(tmp) / case.name)
         outcome = run_folder(folder, case.name, case.controller, case.note)
@@ -1213,6 +1219,7 @@ def run_case(
             shutil.copytree(folder, dest)
             flags = f"--controller {controller} " + ("--quick " if quick else "")
             flags += "".join(f"--mpc-option {k}={v!r} " for k, v in mpc_options.items())
+            flags += f"--fleet {fleet[0]}-{fleet[1]} " if fleet else ""
             write_findings(dest, outcome, f"{flags}--seed {seed} --only {index}")
     return outcome
 
@@ -1400,13 +1407,17 @@ def fuzz(
     show: bool = True,
     quick: bool = False,
     mpc_options: dict[str, Any] | None = None,
+    fleet: tuple[int, int] | None = None,
 ) -> Tally:
     """Generate, run and judge `floors` cases (indices first .. first + floors - 1), MPC cases
-    with `mpc_options` as controller options."""
+    with `mpc_options` as controller options, `fleet` robots if given (`generate_case`)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     tally = Tally()
     opts = dict(mpc_options or {})
-    tasks = [(seed, i, controller, str(out_dir), quick, opts) for i in range(first, first + floors)]
+    tasks = [
+        (seed, i, controller, str(out_dir), quick, opts, fleet)
+        for i in range(first, first + floors)
+    ]
     progress = _progress(floors) if show else None
     if progress is not None:
         next(progress)
@@ -1470,7 +1481,25 @@ def parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="an MPC controller option for the MPC cases (a TOML value: reuse_ticks=4); repeat",
     )
+    ap.add_argument(
+        "--fleet",
+        type=_fleet_range,
+        metavar="MIN-MAX",
+        help="robots per case, drawn from MIN..MAX for either controller (default: 1-8 "
+        "followers, 1-3 MPC robots); the floors stay the same",
+    )
     return ap
+
+
+def _fleet_range(text: str) -> tuple[int, int]:
+    lo, sep, hi = text.partition("-")
+    try:
+        pair = (int(lo), int(hi if sep else lo))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--fleet {text!r}: expected MIN-MAX, e.g. 4-12") from None
+    if not 1 <= pair[0] <= pair[1]:
+        raise argparse.ArgumentTypeError(f"--fleet {text!r}: need 1 <= MIN <= MAX")
+    return pair
 
 
 def _mpc_option(text: str) -> tuple[str, Any]:
@@ -1499,7 +1528,7 @@ def main(argv: Iterable[str] | None = None) -> int:
     if args.only is not None:
         if args.write is not None:
             case = generate_case(
-                args.seed, args.only, args.controller, args.quick, dict(args.mpc_option)
+                args.seed, args.only, args.controller, args.quick, dict(args.mpc_option), args.fleet
             )
             print(case.write(args.write / case.name), case.note)
             return 0
@@ -1508,6 +1537,7 @@ def main(argv: Iterable[str] | None = None) -> int:
         f"fuzz floors: {args.floors} floors from index {args.first}, seed {args.seed}, "
         f"controller {args.controller}, {args.workers} worker(s); failing cases to {args.out}"
         + (f"; MPC options {dict(args.mpc_option)}" if args.mpc_option else "")
+        + (f"; {args.fleet[0]}-{args.fleet[1]} robots a case" if args.fleet else "")
     )
     start = time.perf_counter()
     tally = fuzz(
@@ -1519,6 +1549,7 @@ def main(argv: Iterable[str] | None = None) -> int:
         args.first,
         quick=args.quick,
         mpc_options=dict(args.mpc_option),
+        fleet=args.fleet,
     )
     print(report(tally, args.out, time.perf_counter() - start))
     return 1 if any(o.status == "failed" for o in tally.outcomes) else 0

@@ -132,6 +132,24 @@ def test_mpc_options_reach_only_the_mpc_cases_and_change_no_draw():
         fz.parser().parse_args(["--mpc-option", "reuse_ticks"])
 
 
+def test_a_fleet_range_changes_the_robot_count_and_keeps_the_floor():
+    # `--fleet 9-16`: bigger fleets on the same floors, the same controller and robot kind.
+    counts = []
+    for index in range(12):
+        plain = fz.generate_case(5, index, "both")
+        big = fz.generate_case(5, index, "both", fleet=(9, 16))
+        assert fz.dump_toml(plain.floor) == fz.dump_toml(big.floor)
+        assert big.controller == plain.controller
+        assert big.scen["robots"]["radius"] == plain.scen["robots"]["radius"]
+        counts.append(big.scen["robots"]["count"])
+    assert all(9 <= n <= 16 for n in counts) and len(set(counts)) > 1, counts
+    assert fz.parser().parse_args(["--fleet", "4-12"]).fleet == (4, 12)
+    assert fz.parser().parse_args(["--fleet", "6"]).fleet == (6, 6)
+    for bad in ("12-4", "0-3", "four"):
+        with pytest.raises(SystemExit):
+            fz.parser().parse_args(["--fleet", bad])
+
+
 def test_a_clean_trajectory_passes(oracle):
     run = record({"r1": line(0, 0.25, (15, 2), (15, 8), 40)}, v_max=1.0)
     assert oracle.judge(run) == []
