@@ -37,6 +37,8 @@ and the run's record (samples, events, print caps). Finding kinds:
                   same case (`confirm_duration`; or it failed without a reason)
 ``job_late``      (informational: the case does not fail) such a job was not done at the end,
                   but the longer run delivers it or fails it with a reason: slow, not stuck
+``home_late``     (informational) a robot found ``stuck_home`` at the end that gets home in
+                  the longer run: held up (a crowd between it and home), not stuck for good
 ``controller_error`` a robot's controller raised while it had somewhere to go (the agent
                   brakes the robot and counts it: summary.json's ``goal_errors``)
 ``run_error``     the floor and scenario loaded, but the run raised a FleetError
@@ -45,9 +47,11 @@ and the run's record (samples, events, print caps). Finding kinds:
 A case with a ``job_not_done`` finding (whatever else it found) is run again, the same floor,
 scenario and seed, for `confirm_duration` seconds; only the jobs not done in the first run are
 judged there (jobs released after the first run's end, and the longer run's other findings, do
-not count): each ended one becomes ``job_late``, the rest stay ``job_not_done``. The first part
-of the longer run is the first run (the engine's run does not depend on its duration up to the
-end), so it adds time only, and only for these cases.
+not count): each ended one becomes ``job_late``, the rest stay ``job_not_done``. A
+``stuck_home`` finding is judged there the same way: a robot that gets home after the first
+run's end becomes ``home_late``. The first part of the longer run is the first run (the engine's
+run does not depend on its duration up to the end), so it adds time only, and only for these
+cases.
 
 A map or scenario the loader refuses with a `FleetError` is counted as *refused* (allowed by
 the issue), with the first line of its message.
@@ -115,7 +119,7 @@ DONE_GRACE_S = 150.0
 CONFIRM_FACTOR = 3.0
 CONFIRM_EXTRA_S = 600.0
 #: Kinds that are reported and counted but do not make a case fail.
-INFO_KINDS = frozenset({"job_late"})
+INFO_KINDS = frozenset({"job_late", "home_late"})
 #: The engine's own safety counts (summary.json ``violations``).
 SAFETY_KEYS = ("collision", "obstacle", "speed_zone", "print_speed")
 #: Finding kinds in the order the table prints them.
@@ -129,6 +133,7 @@ KINDS = (
     "contact",
     "stuck",
     "stuck_home",
+    "home_late",
     "job_waiting",
     "job_not_done",
     "job_late",
@@ -260,13 +265,17 @@ def generate_case(
     controller: str = "both",
     quick: bool = False,
     mpc_options: dict[str, Any] | None = None,
+    fleet: tuple[int, int] | None = None,
 ) -> Case:
     """Case `index` of master seed `seed` (the same pair always gives the same case).
 
     `quick`: a small fleet (1-3 robots, the MPC 1-2) and a short run (the test suite's sample;
     other draws as usual, but the stream differs from the full cases'). `mpc_options`: MPC
     controller options written into an MPC case's scenario (no draw depends on them, so the
-    floors and fleets are the same with and without).
+    floors and fleets are the same with and without). `fleet`: the number of robots is drawn
+    from this range (inclusive) instead, from a stream of its own, so the floor, the
+    controller and the robots' kind are the same case's (the draws after it, the jobs among
+    them, depend on the count).
     """
     rng = random.Random(f"fuzz-floors/{seed}/{index}" + ("/quick" if quick else ""))
     if controller == "both":
@@ -433,6 +442,8 @@ def generate_case(
         count = rng.randrange(1, 3) if mpc else rng.randrange(1, 4)
         period = max(period, 0.25)
         duration = 60 if mpc else 180
+    if fleet is not None:
+        count = random.Random(f"fuzz-floors/{seed}/{index}/fleet").randint(*fleet)
     scen: dict[str, Any] = {
         "scenario": {
             "name": f"fuzz-{seed}-{index}",
@@ -1085,12 +1096,46 @@ def confirm_not_done(
     return out
 
 
+def confirm_home(
+    findings: list[Finding],
+    end: float,
+    long_s: float,
+    long_trajectories: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> list[Finding]:
+    """`findings` with each ``stuck_home`` (an idle robot held away from home up to `end`, the
+    first run's end) judged by the run of `long_s` seconds whose trajectories (robot -> t, xy,
+    v) are `long_trajectories`: a robot within `STUCK_RADIUS_M` of home (where it started) at
+    some time after `end` becomes ``home_late``; the others stay, saying the longer run
+    confirmed them."""
+    out = []
+    for f in findings:
+        if f.kind != "stuck_home":
+            out.append(f)
+            continue
+        t, xy, _ = long_trajectories[f.robot]
+        after = t > end
+        home = t[after][np.hypot(*(xy[after] - xy[0]).T) <= STUCK_RADIUS_M]
+        if len(home):
+            how = f"home at {home[0]:.1f} s in a {long_s:g}-s run of the same case"
+            out.append(Finding("home_late", f.robot, float(home[0]), f"{f.detail}; {how}"))
+        else:
+            why = f"confirmed by a {long_s:g}-s run of the same case (not home at its end)"
+            out.append(replace(f, detail=f"{f.detail}; {why}"))
+    return out
+
+
+def _to_confirm(f: Finding) -> bool:
+    """Whether a longer run of the case may still turn `f` into an informational finding."""
+    return bool(f.open_job) or f.kind == "stuck_home"
+
+
 def run_folder(
     folder: Path, name: str = "", controller: str = "", note: str = "", confirm: bool = True
 ) -> Outcome:
     """Load, run and judge the case in `folder` (floor.toml + scen.toml). With `confirm`, a
-    ``job_not_done`` finding is judged again by a longer run (`confirm_not_done`, run only when
-    there is one); the longer run is written to `folder`/run-long when one is confirmed."""
+    ``job_not_done`` or ``stuck_home`` finding is judged again by a longer run
+    (`confirm_not_done`, `confirm_home`; run only when there is one); the longer run is
+    written to `folder`/run-long when it confirms one."""
     from fleet.engine import World
     from fleet.errors import FleetError
     from fleet.scenario import load_scenario
@@ -1116,7 +1161,7 @@ def run_folder(
         model = MapModel.read(folder / "floor.toml")
         out.findings = Oracle(model).judge(record_of(world)) + controller_errors(result.summary)
         long_world = None
-        if confirm and any(f.open_job for f in out.findings):
+        if confirm and any(_to_confirm(f) for f in out.findings):
             long_s = confirm_duration(scenario.duration_s)
             try:
                 long_world = World(scenario.override(duration=long_s))
@@ -1127,7 +1172,7 @@ def run_folder(
                     replace(
                         f, detail=f"{f.detail}; not confirmed: the {long_s:g}-s run raised {why}"
                     )
-                    if f.open_job
+                    if _to_confirm(f)
                     else f
                     for f in out.findings
                 ]
@@ -1136,12 +1181,16 @@ def run_folder(
                 events = [
                     (e.t, e.event, e.job, e.robot, e.station) for e in long_world.recorder.events
                 ]
-                out.findings = confirm_not_done(out.findings, float(world.env.now), long_s, events)
+                end = float(world.env.now)
+                out.findings = confirm_not_done(out.findings, end, long_s, events)
+                out.findings = confirm_home(
+                    out.findings, end, long_s, record_of(long_world).trajectories
+                )
         if any(f.kind not in INFO_KINDS for f in out.findings):
             out.status = "failed"
         if out.status == "failed" or out.engine_flagged:
             world.write(folder / "run")
-            if long_world is not None and _has(out, "job_not_done"):
+            if long_world is not None and (_has(out, "job_not_done") or _has(out, "stuck_home")):
                 long_world.write(folder / "run-long")
     except Exception as exc:  # noqa: BLE001 - every other exception is a finding
         out.status = "failed"
@@ -1152,14 +1201,14 @@ def run_folder(
     return out
 
 
-def run_case(
-    args: tuple[int, int, str, str, bool] | tuple[int, int, str, str, bool, dict[str, Any]],
-) -> Outcome:
+def run_case(args: tuple) -> Outcome:
     """Generate case (seed, index) into a scratch folder, run and judge it; on findings copy
-    the folder to `out`. A module-level function, so worker processes can take it."""
+    the folder to `out`. A module-level function, so worker processes can take it. `args`:
+    (seed, index, controller, out, quick[, mpc_options[, fleet]]), as `generate_case`'s."""
     seed, index, controller, out_dir, quick = args[:5]
-    mpc_options: dict[str, Any] = args[5] if len(args) > 5 else {}  # type: ignore[misc]
-    case = generate_case(seed, index, controller, quick, mpc_options)
+    mpc_options: dict[str, Any] = args[5] if len(args) > 5 else {}
+    fleet: tuple[int, int] | None = args[6] if len(args) > 6 else None
+    case = generate_case(seed, index, controller, quick, mpc_options, fleet)
     with tempfile.TemporaryDirectory(prefix="fuzz-floors-") as tmp:
         folder = case.write(Path(tmp) / case.name)
         outcome = run_folder(folder, case.name, case.controller, case.note)
@@ -1170,6 +1219,7 @@ def run_case(
             shutil.copytree(folder, dest)
             flags = f"--controller {controller} " + ("--quick " if quick else "")
             flags += "".join(f"--mpc-option {k}={v!r} " for k, v in mpc_options.items())
+            flags += f"--fleet {fleet[0]}-{fleet[1]} " if fleet else ""
             write_findings(dest, outcome, f"{flags}--seed {seed} --only {index}")
     return outcome
 
@@ -1196,7 +1246,7 @@ def write_findings(folder: Path, outcome: Outcome, generated_by: str = "") -> No
     if (folder / "run").exists():
         lines += ["the engine's run directory is in run/ (trajectories.csv, events.csv ...)"]
     if (folder / "run-long").exists():
-        lines += ["the longer run that confirmed job_not_done is in run-long/"]
+        lines += ["the longer run that confirmed job_not_done or stuck_home is in run-long/"]
     if outcome.traceback:
         lines += ["", outcome.traceback]
     (folder / "findings.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -1238,6 +1288,13 @@ def report(tally: Tally, out_dir: Path, elapsed: float) -> str:
             "late jobs (not done at the end, done in a longer run of the case; "
             f"informational): {tally.kinds()['job_late'][0]} in {len(late)} runs, "
             f"{sum(1 for o in late if o.status != 'failed')} of them without other findings"
+        )
+    home = [o for o in outs if _has(o, "home_late")]
+    if home:
+        lines.append(
+            "robots home late (held away from home at the end, home in a longer run of the "
+            f"case; informational): {tally.kinds()['home_late'][0]} in {len(home)} runs, "
+            f"{sum(1 for o in home if o.status != 'failed')} of them without other findings"
         )
     by_ctl = Counter(o.controller for o in ran)
     walls = [o.wall_s for o in ran]
@@ -1350,13 +1407,17 @@ def fuzz(
     show: bool = True,
     quick: bool = False,
     mpc_options: dict[str, Any] | None = None,
+    fleet: tuple[int, int] | None = None,
 ) -> Tally:
     """Generate, run and judge `floors` cases (indices first .. first + floors - 1), MPC cases
-    with `mpc_options` as controller options."""
+    with `mpc_options` as controller options, `fleet` robots if given (`generate_case`)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     tally = Tally()
     opts = dict(mpc_options or {})
-    tasks = [(seed, i, controller, str(out_dir), quick, opts) for i in range(first, first + floors)]
+    tasks = [
+        (seed, i, controller, str(out_dir), quick, opts, fleet)
+        for i in range(first, first + floors)
+    ]
     progress = _progress(floors) if show else None
     if progress is not None:
         next(progress)
@@ -1420,7 +1481,25 @@ def parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="an MPC controller option for the MPC cases (a TOML value: reuse_ticks=4); repeat",
     )
+    ap.add_argument(
+        "--fleet",
+        type=_fleet_range,
+        metavar="MIN-MAX",
+        help="robots per case, drawn from MIN..MAX for either controller (default: 1-8 "
+        "followers, 1-3 MPC robots); the floors stay the same",
+    )
     return ap
+
+
+def _fleet_range(text: str) -> tuple[int, int]:
+    lo, sep, hi = text.partition("-")
+    try:
+        pair = (int(lo), int(hi if sep else lo))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--fleet {text!r}: expected MIN-MAX, e.g. 4-12") from None
+    if not 1 <= pair[0] <= pair[1]:
+        raise argparse.ArgumentTypeError(f"--fleet {text!r}: need 1 <= MIN <= MAX")
+    return pair
 
 
 def _mpc_option(text: str) -> tuple[str, Any]:
@@ -1449,7 +1528,7 @@ def main(argv: Iterable[str] | None = None) -> int:
     if args.only is not None:
         if args.write is not None:
             case = generate_case(
-                args.seed, args.only, args.controller, args.quick, dict(args.mpc_option)
+                args.seed, args.only, args.controller, args.quick, dict(args.mpc_option), args.fleet
             )
             print(case.write(args.write / case.name), case.note)
             return 0
@@ -1458,6 +1537,7 @@ def main(argv: Iterable[str] | None = None) -> int:
         f"fuzz floors: {args.floors} floors from index {args.first}, seed {args.seed}, "
         f"controller {args.controller}, {args.workers} worker(s); failing cases to {args.out}"
         + (f"; MPC options {dict(args.mpc_option)}" if args.mpc_option else "")
+        + (f"; {args.fleet[0]}-{args.fleet[1]} robots a case" if args.fleet else "")
     )
     start = time.perf_counter()
     tally = fuzz(
@@ -1469,6 +1549,7 @@ def main(argv: Iterable[str] | None = None) -> int:
         args.first,
         quick=args.quick,
         mpc_options=dict(args.mpc_option),
+        fleet=args.fleet,
     )
     print(report(tally, args.out, time.perf_counter() - start))
     return 1 if any(o.status == "failed" for o in tally.outcomes) else 0

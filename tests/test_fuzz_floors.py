@@ -6,6 +6,7 @@ The full run (1,000 floors or more) is the script itself: ``python scripts/fuzz_
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +130,24 @@ def test_mpc_options_reach_only_the_mpc_cases_and_change_no_draw():
     assert dict(args.mpc_option) == {"reuse_ticks": 4, "cost": "l1"}
     with pytest.raises(SystemExit):
         fz.parser().parse_args(["--mpc-option", "reuse_ticks"])
+
+
+def test_a_fleet_range_changes_the_robot_count_and_keeps_the_floor():
+    # `--fleet 9-16`: bigger fleets on the same floors, the same controller and robot kind.
+    counts = []
+    for index in range(12):
+        plain = fz.generate_case(5, index, "both")
+        big = fz.generate_case(5, index, "both", fleet=(9, 16))
+        assert fz.dump_toml(plain.floor) == fz.dump_toml(big.floor)
+        assert big.controller == plain.controller
+        assert big.scen["robots"]["radius"] == plain.scen["robots"]["radius"]
+        counts.append(big.scen["robots"]["count"])
+    assert all(9 <= n <= 16 for n in counts) and len(set(counts)) > 1, counts
+    assert fz.parser().parse_args(["--fleet", "4-12"]).fleet == (4, 12)
+    assert fz.parser().parse_args(["--fleet", "6"]).fleet == (6, 6)
+    for bad in ("12-4", "0-3", "four"):
+        with pytest.raises(SystemExit):
+            fz.parser().parse_args(["--fleet", bad])
 
 
 def test_a_clean_trajectory_passes(oracle):
@@ -411,6 +430,37 @@ def test_a_job_never_done_stays_not_done_confirmed_by_the_longer_run(tmp_path, n
     # Both runs are saved with the case: the first and the one that confirmed it.
     assert (folder / "run" / "events.csv").is_file()
     assert (folder / "run-long" / "events.csv").is_file()
+
+
+def test_a_robot_held_away_from_home_is_late_only_if_it_gets_home_after_the_first_end():
+    # Homes at the origin (where each starts). r01 gets home at 300 s, after the first end
+    # (240 s): late. r02 never does: stuck_home stands, confirmed. r03 passed home at 100 s,
+    # before the first end, and not after: that does not count.
+    t = np.arange(0.0, 781.0, 20.0)
+    away = np.column_stack([np.full_like(t, 9.0), np.zeros_like(t)])
+    at_home_from = {"r01": 300.0, "r02": math.inf}
+    tracks = {}
+    for robot, home_at in at_home_from.items():
+        xy = np.where((t >= home_at)[:, None], 0.0, away)
+        xy[0] = (0.0, 0.0)
+        tracks[robot] = (t, xy, np.zeros_like(xy))
+    xy = away.copy()
+    xy[0] = xy[5] = (0.0, 0.0)  # home at 0 s and 100 s only
+    tracks["r03"] = (t, xy, np.zeros_like(xy))
+    findings = [
+        fz.Finding("stuck_home", r, 150.0, f"idle since 0.0 s, 9.00 m from home ({r})")
+        for r in ("r01", "r02", "r03")
+    ] + [fz.Finding("contact", "r01", 20.0, "r01 and r02 ...")]
+    out = fz.confirm_home(findings, 240.0, 780.0, tracks)
+    assert [(f.kind, f.robot, f.t) for f in out] == [
+        ("home_late", "r01", 300.0),
+        ("stuck_home", "r02", 150.0),
+        ("stuck_home", "r03", 150.0),
+        ("contact", "r01", 20.0),
+    ]
+    assert "home at 300.0 s in a 780-s run" in out[0].detail
+    assert "confirmed by a 780-s run" in out[1].detail
+    assert "home_late" in fz.INFO_KINDS and "stuck_home" not in fz.INFO_KINDS
 
 
 def test_only_the_jobs_open_at_the_first_end_are_judged_again():

