@@ -61,6 +61,11 @@ class StationQueue:
             if goal is not None and o.in_service:
                 self._bound.setdefault(goal, []).append(o)
 
+    def bound_for(self, station: tuple[float, float]) -> list[RobotState]:
+        """The robots in service whose job sends them to `station` (as of `snapshot`; none
+        with the queue off)."""
+        return self._bound.get(station, [])
+
     def goal_of(
         self, robot: RobotState, goal: tuple[float, float] | None
     ) -> tuple[float, float] | None:
