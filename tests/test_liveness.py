@@ -200,9 +200,12 @@ def test_robots_waiting_their_turn_keep_out_of_the_door_by_the_station(tmp_path:
     # robots, three rooms joined by doors one robot wide, the station 2 m south of one. Robots
     # waiting their turn stopped in that door and shut the way out: r04, idle, was sent aside
     # again and again within 2.1 m, 12 m from home, for the last 90 s. A robot now waits only
-    # where its centre has a radius of free space all round it (jobs still end late here).
-    findings = judged("queue_by_a_door", tmp_path, confirm=False)
-    failing = [f for f in findings if f.kind != "job_not_done"]
+    # where its centre has a radius of free space all round it (jobs still end late here, and
+    # with a station's turns kept by job age an idle robot, r08, gets home late: at 582 s).
+    # Crowds are chaotic: with those turns the case runs clean without the rule too, which
+    # tests/test_queueing.py checks on its own (`..._waits_its_turn_only_in_the_open`).
+    findings = judged("queue_by_a_door", tmp_path)
+    failing = [f for f in findings if f.kind not in fz.INFO_KINDS]
     assert failing == [], "\n".join(map(str, failing))
 
 

@@ -5,12 +5,15 @@ in turn. Real runs of both controllers on an open hall, judged from the recorded
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fleet.engine import World
+from fleet.engine import JobRecord, World
+from fleet.engine.queueing import StationQueue
+from fleet.plugins import Job
 from fleet.scenario import load_scenario
 
 FLOOR = """\
@@ -124,3 +127,47 @@ def test_without_the_queue_robots_crowd_round_the_station(tmp_path) -> None:
     world, summary = run(tmp_path, "follower", queue=False)
     assert summary["jobs"]["completed"] == 3
     assert closest_while_taken(world) < 2 * 0.4
+
+
+# g moved 1 m north, 1.2 m south of a wall across the hall at y = 9 with a door 1.2 m wide (x
+# 14.4 to 15.6): a robot at rest in the door would wait its turn there and shut the way out.
+G_DOOR = (15.0, 8.0)
+WALL = """
+[[obstacles]]
+name = "wall_west"
+polygon = [[0, 9], [14.4, 9], [14.4, 9.4], [0, 9.4]]
+
+[[obstacles]]
+name = "wall_east"
+polygon = [[15.6, 9], [24, 9], [24, 9.4], [15.6, 9.4]]
+"""
+
+
+@pytest.mark.parametrize(
+    ("wall", "where", "waits"),
+    [
+        (True, (15.0, 9.2), False),  # in the door: it drives on (in the door it would shut it)
+        (False, (15.0, 9.2), True),  # the same spot with no wall: it waits there
+        (True, (16.5, 7.6), True),  # beside g, in the open: it waits there
+    ],
+)
+def test_a_robot_waits_its_turn_only_in_the_open(tmp_path, wall, where, waits) -> None:
+    floor = FLOOR.replace("at = [15, 7]", "at = [15, 8]") + (WALL if wall else "")
+    (tmp_path / "floor.toml").write_text(floor, encoding="utf-8")
+    text = SCENARIO.format(queue="true", controller="follower", jobs=JOBS)
+    (tmp_path / "scen.toml").write_text(text, encoding="utf-8")
+    world = World(load_scenario(tmp_path / "scen.toml"))
+    try:
+        assert world.floor.is_free(*where)
+        job = Job("j1", "g", *G_DOOR, released_s=0.0)
+        ahead, behind = world.robots["r01"], world.robots["r02"]
+        ahead.x, ahead.y = G_DOOR
+        behind.x, behind.y = where  # at rest: it would wait where it stands
+        ahead.job, behind.job = JobRecord(job), JobRecord(replace(job, id="j2"))
+        queue = StationQueue(world.floor, {"r01": ahead, "r02": behind})
+        queue.snapshot()
+        assert queue.goal_of(ahead, G_DOOR) == G_DOOR  # the nearest goes on
+        assert queue.goal_of(behind, G_DOOR) == (where if waits else G_DOOR)
+        assert (queue.station_of(behind) == G_DOOR) is waits
+    finally:
+        world._close_bus()

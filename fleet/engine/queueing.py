@@ -10,7 +10,9 @@ there until it is the nearest. The robot ahead thus has a footprint of room roun
 by (and `WAIT_GAP_M` more, braking as the robot behind may), and the one that waited goes next.
 The deadlock watch (`fleet.engine.sensing`) still watches the station for a robot waiting its
 turn (`StationQueue.station_of`), and such a robot steps aside, as an idle one does, for any
-robot stuck beside it that is not bound for the same station: it will not leave by itself.
+robot stuck beside it that is not bound for the same station: it will not leave by itself. A
+robot waiting with its part done for an older job sends one printing a younger job's part on
+the station aside (the watch, with `StationQueue.bound_for`): turns go by the jobs' age.
 
 Spots are where the robot would stop, so a run stays reproducible (no random draws).
 """
@@ -60,6 +62,11 @@ class StationQueue:
             goal = o.goal
             if goal is not None and o.in_service:
                 self._bound.setdefault(goal, []).append(o)
+
+    def bound_for(self, station: tuple[float, float]) -> list[RobotState]:
+        """The robots in service whose job sends them to `station` (as of `snapshot`; none
+        with the queue off)."""
+        return self._bound.get(station, [])
 
     def goal_of(
         self, robot: RobotState, goal: tuple[float, float] | None

@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
+from fleet.engine.jobs import JobRecord
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near
 from fleet.engine.recorder import Recorder
@@ -196,8 +197,24 @@ class Sensing:
             # that has made no progress for `IDLE_ASK_S` is sent aside then, not a whole
             # deadlock period later (fuzz s21-0566, s21-0827: robots parked at home round a
             # depot by a door cost 30 s to each robot with a job that came through).
+            # So, once this one's part is done, does a robot standing on its goal to print a
+            # part done later there for a younger job: a robot served at a station took each
+            # next job there and printed it on the station while one with an older job and a
+            # finished part waited its turn beside it (fuzz s21-0366), each print shorter than
+            # the deadlock period. (One there first, for an older job, keeps its turn: moved
+            # off the end of a dead end it came back 40 s later.)
             if r.job is not None and r.aside is None and t - r.progress_s >= IDLE_ASK_S:
                 idle = self.make_way.idle_on_route(r, goal, reach + set_off, t)
+                if _part_ready(r, t):
+                    idle += [
+                        o
+                        for o in self.make_way.queue.bound_for(goal)
+                        if o is not r
+                        and o.aside is None
+                        and o.in_service
+                        and _prints_on_longer(o, r, goal, t, tol)
+                        and _younger(o, r)
+                    ]
                 if idle:
                     self.make_way.ask(r, goal, idle, t)
             return
@@ -502,9 +519,27 @@ def _prints_on_longer(
     end = theirs.print_end_s
     if end is None or end <= t:
         return False
-    passing = mine.leg < len(mine.via)
-    ready = -math.inf if passing or not mine.tasks else mine.print_end_s
+    ready = _ready_s(mine)
     return ready is not None and ready < end
+
+
+def _ready_s(job: JobRecord) -> float | None:
+    """When `job`'s robot may leave its goal: -inf when it only passes it (a via station) or
+    prints nothing, else when its print ends (None: not known yet)."""
+    passing = job.leg < len(job.via)
+    return -math.inf if passing or not job.tasks else job.print_end_s
+
+
+def _younger(o: RobotState, r: RobotState) -> bool:
+    """Whether `o`'s job was released after `r`'s (the larger id first when at once)."""
+    assert o.job is not None and r.job is not None
+    return (o.job.job.released_s, o.job.job.id) > (r.job.job.released_s, r.job.job.id)
+
+
+def _part_ready(r: RobotState, t: float) -> bool:
+    """Whether `r` has a job and could be done at its goal at `t` (`_ready_s`)."""
+    ready = None if r.job is None else _ready_s(r.job)
+    return ready is not None and ready <= t
 
 
 def _parked(o: RobotState, tol: float) -> bool:
