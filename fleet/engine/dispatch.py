@@ -86,27 +86,19 @@ class Dispatch:
         #: Jobs queued behind a busy robot's current one (auctions), to the robots that were
         #: idle when it was queued: a robot freed since may deliver it sooner (`_reoffer`).
         self._queued_idle: dict[str, frozenset[str]] = {}
-        #: The robots not to be given another job to a station now, for robots waiting their
-        #: turn there (`StationQueue.served_first`; set by the world).
-        self.served_first: Callable[[tuple[float, float]], frozenset[str]] = _nobody
 
     def held_off(self, rec: JobRecord) -> set[str]:
-        """The robots not to be given `rec` now: those that handed it back lately, those
-        blocked lately on their way to its first stop, and while a robot waits its turn there,
-        those bound for it or on it (`served_first`). Several jobs to one station went round
+        """The robots not to be given `rec` now: those that handed it back lately, and those
+        blocked lately on their way to its first stop. Several jobs to one station went round
         the robots stuck in front of it: each took the next job there, was blocked at once on
         the same way and handed it back in the same tick (fuzz seed 7, s7-0123)."""
         t = self.env.now
         first = (rec.via[0][1], rec.via[0][2]) if rec.via else (rec.job.x, rec.job.y)
-        return (
-            rec.held_off(t)
-            | {
-                robot
-                for robot, (where, until) in self._blocked_to.items()
-                if t < until and math.dist(where, first) <= BLOCKED_SAME_M
-            }
-            | self.served_first(first)
-        )
+        return rec.held_off(t) | {
+            robot
+            for robot, (where, until) in self._blocked_to.items()
+            if t < until and math.dist(where, first) <= BLOCKED_SAME_M
+        }
 
     def available(self, robot: RobotState) -> bool:
         """Whether `robot` may be given jobs: in service and not kept off duty to charge."""
@@ -364,7 +356,3 @@ class Dispatch:
             log.warning("job %s failed at t = %.2f s: %s", rec.job.id, t, reason)
         # The robot is free (and the job open again unless it failed): offer the open jobs.
         self.request()
-
-
-def _nobody(_station: tuple[float, float]) -> frozenset[str]:
-    return frozenset()

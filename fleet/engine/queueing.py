@@ -49,24 +49,13 @@ class StationQueue:
         #: The robots in service with a job, by where it sends them (`snapshot`): the ones a
         #: robot may be behind, without a pass over the whole fleet for each robot.
         self._bound: dict[tuple[float, float], list[RobotState]] = {}
-        #: Robots that waited their turn, to the station, until they have another goal: the
-        #: robot ahead leaving ends the wait, not the claim to go next (`served_first`).
-        self._waited: dict[str, tuple[float, float]] = {}
-        #: `served_first` of each station asked for since the last `snapshot`.
-        self._first: dict[tuple[float, float], frozenset[str]] = {}
 
     def snapshot(self) -> None:
         """Note where each robot's job sends it, once per round before its robots' goals are
         asked for (`fleet.engine.sensing`): jobs change between rounds, not within one."""
         self._bound = {}
-        self._first = {}
         if not self.enabled:
             return
-        self._waited = {
-            rid: station
-            for rid, station in self._waited.items()
-            if self.robots[rid].goal == station and self.robots[rid].in_service
-        }
         for o in self.robots.values():
             goal = o.goal
             if goal is not None and o.in_service:
@@ -93,39 +82,12 @@ class StationQueue:
                 return goal  # in a door or a narrow way: it drives on to where it may wait
             waits = (goal, spot)
             self._waits[robot.id] = waits
-            self._waited[robot.id] = goal
         return waits[1]
 
     def station_of(self, robot: RobotState) -> tuple[float, float] | None:
         """The station `robot` waits its turn for (None: it does not wait)."""
         waits = self._waits.get(robot.id)
         return None if waits is None or robot.aside is not None else waits[0]
-
-    def served_first(self, station: tuple[float, float]) -> frozenset[str]:
-        """The robots not to be given another job to `station` now: while a robot that waited
-        its turn there is still bound for it, each robot bound for it and each on it. The
-        robot on a station is the nearest, so it went first with every job there it won (its
-        bid the smallest): 80 MPC robots, seed 1, five robots on five stations delivered 110
-        jobs there in the last 60 s while 23 robots that had waited there since 60-116 s
-        delivered 5 (each wait counted as a deadlock). Held off, it leaves (for home or its
-        next job elsewhere), and a robot that waited goes next."""
-        held = self._first.get(station)
-        if held is None:
-            waiting = any(
-                waited == station and self.robots[rid].goal == station
-                for rid, waited in self._waited.items()
-            )
-            held = frozenset(
-                o.id
-                for o in self.robots.values()
-                if waiting
-                and (
-                    o.goal == station
-                    or math.hypot(o.x - station[0], o.y - station[1]) <= o.spec.radius
-                )
-            )
-            self._first[station] = held
-        return held
 
     def _behind(self, robot: RobotState, station: tuple[float, float]) -> bool:
         """Whether another robot with a job for `station` is nearer it than `robot`, and `robot`

@@ -182,7 +182,6 @@ class World:
             scenario.arrival_tolerance_m,
             scenario.station_queue,
         )
-        self.dispatch.served_first = make_way.queue.served_first
         self.sensing = Sensing(scenario, self.robots, self.recorder, self.turning, make_way)
         rounds = PipelinedRounds if scenario.bus.lockstep == "pipelined" else BusRounds
         self.rounds = rounds(
