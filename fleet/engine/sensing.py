@@ -275,8 +275,8 @@ class Sensing:
             r.boosted_until = t + after
         if stalled and not r.stalled and r.reported_at != r.progress_s:
             # Counted once until it makes progress: a robot waiting beside a station came and
-            # went from `stalled` as robots passed within reach, and one wait of 40 s was
-            # reported up to 9 times (80 MPC robots, seed 1: 63 reports of 24 waits).
+            # went from `stalled` as robots passed within reach, and was reported up to 9
+            # times in one wait (80 MPC robots, seed 1: 63 reports, 25 counted once each).
             r.reported_at = r.progress_s
             self.recorder.stats["deadlocks"] += 1
             named = sorted({*blockers, *(o.id for o in movable)})
