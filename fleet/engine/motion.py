@@ -110,6 +110,9 @@ class RobotState:
     boosted_until: float = -math.inf
     #: Stuck (blocked by robots, or by idle robots it waits for to step aside), reported once.
     stalled: bool = False
+    #: `progress_s` when it was last reported stuck: until it makes progress again it is the
+    #: same deadlock, however often robots come and go round it (`fleet.engine.sensing`).
+    reported_at: float | None = None
     #: Where it waits off the route of a robot it blocked (`fleet.engine.makeway.Aside`).
     aside: Aside | None = None
     #: Compute latency (`Scenario.latency`): inputs waiting to take effect as ``(effect time,

@@ -289,8 +289,13 @@ class Sensing:
         ]
         stalled = bool(blockers or movable)
         if stalled and not r.stalled:
-            self.recorder.stats["deadlocks"] += 1
             r.boosted_until = t + after
+        if stalled and not r.stalled and r.reported_at != r.progress_s:
+            # Counted once until it makes progress: a robot waiting beside a station came and
+            # went from `stalled` as robots passed within reach, and was reported up to 9
+            # times in one wait (80 MPC robots, seed 1: 63 reports, 25 counted once each).
+            r.reported_at = r.progress_s
+            self.recorder.stats["deadlocks"] += 1
             named = sorted({*blockers, *(o.id for o in movable)})
             self.recorder.event(
                 t, "deadlock", "" if r.job is None else r.job.job.id, r.id, " ".join(named)
