@@ -6,9 +6,12 @@ r01's square but out of contact, so its solve kept to a side across the line bet
 (`separation.build_separation`). That was infeasible, and the solve was tried again with r01's
 whole square soft (`crowd.solve_clear`), which planned r03 0.80 m past r01 (contact 0.88 m):
 0.871 m apart at 43.5 s, while braking would have stopped it 1.0 m off. Now a softened plan
-that comes into contact with a robot it had a side across is not used: the fallback brakes or
-follows the last plan, each checked on its own. The case folder is
-tests/contact_cases/past_a_robot_at_rest (the fuzz case as found, cut from 180 s to 45 s).
+that comes into contact with a robot it had a side across, where braking straight on would
+not, is not used: the fallback brakes or follows the last plan, each checked on its own. (Where
+braking touches too, the softened plan may be the lesser contact: `test_mpc_fleet.py`'s robot
+passing one at rest at 1 m/s brakes to 0.70 m of it, and steers round it at 0.806 m.) The
+case folder is tests/contact_cases/past_a_robot_at_rest (the fuzz case as found, cut from 180 s
+to 45 s).
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fleet_plugins.mpc.model import Solution, StepData, TripModel
+from fleet_plugins.mpc.neighbours import brake_after
 from fleet_plugins.mpc.separation import Obstacle, Separation, build_separation
 
 __all__ = ["intrudes", "solve_clear", "touches"]
@@ -69,6 +70,19 @@ def touches(ob: Obstacle, p: np.ndarray, between: int = 8) -> bool:
     return bool(np.any(gap < limit - 1e-9))
 
 
+def _brakes_clear_where(
+    softened: Solution, across: Sequence[Obstacle], model: TripModel, data: StepData
+) -> bool:
+    """Whether the `softened` plan comes into contact with one of the robots it had a side
+    `across` where braking straight on from here would not (where both touch, the plan may
+    still be the lesser contact: a robot passing one at rest at speed)."""
+    if softened.p is None:
+        return False
+    here, now = data.p_lo[0], data.v_lo[0]
+    brake = brake_after(0.0, here, now, model.dt, model.a_max, len(data.p_lo) - 1)
+    return any(touches(ob, softened.p) and not touches(ob, brake) for ob in across)
+
+
 def solve_clear(
     model: TripModel,
     data: StepData,
@@ -96,15 +110,16 @@ def solve_clear(
         if separation is not None and not solution.outcome.usable and separation.normals.any():
             # A side across a robot inside its square was too strict: soften that square
             # instead, so that the plan steers away rather than brakes (`build_separation`),
-            # but not into contact: then the fallback brakes or follows the last plan, each
-            # checked on its own (fuzz s51-0000: 7 MPC robots, a robot sliding round one at
-            # rest planned 0.80 m past it, radii 0.44, where braking stopped 1.0 m off).
+            # but not into contact where braking would keep out of it: then the fallback
+            # brakes or follows the last plan, each checked on its own (fuzz s51-0000: 7 MPC
+            # robots, a robot sliding round one at rest planned 0.80 m past it, radii 0.44,
+            # where braking stopped 1.0 m off).
             assert p_lo is not None and p_hi is not None
             spent += solution.solver_s
             across = [ob for ob, n in zip(chosen, separation.normals, strict=True) if n.any()]
             soft_separation = build_separation(tuple(chosen), p_lo, p_hi, spans, across=False)
             softened = model.solve(data, warm, soft_separation)
-            if not (softened.p is not None and any(touches(ob, softened.p) for ob in across)):
+            if not _brakes_clear_where(softened, across, model, data):
                 separation, solution = soft_separation, softened
             else:
                 solution.solver_s += softened.solver_s
