@@ -171,6 +171,7 @@ class TripModel:
         self.time_limit_s = time_limit_s
         self.max_nodes = max_nodes
         self._dims = (dt, a_max, weights)
+        self.dt, self.a_max = dt, a_max
         if interface is Interface.DIRECT:
             # Each solve builds its own bounded MILP (`bounded`): no Pyomo model at all.
             self._faces = TripFaces.of(trip)
