@@ -70,12 +70,13 @@ def touches(ob: Obstacle, p: np.ndarray, between: int = 8) -> bool:
     return bool(np.any(gap < limit - 1e-9))
 
 
-def _brakes_clear_where(
+def _into_contact_braking_avoids(
     softened: Solution, across: Sequence[Obstacle], model: TripModel, data: StepData
 ) -> bool:
     """Whether the `softened` plan comes into contact with one of the robots it had a side
-    `across` where braking straight on from here would not (where both touch, the plan may
-    still be the lesser contact: a robot passing one at rest at speed)."""
+    `across` where braking straight on from the measured state (``p[0]``, ``v[0]``, fixed in
+    `data`) would not. Where both touch, the plan may still be the lesser contact (a robot
+    passing one at rest at speed), and it is kept."""
     if softened.p is None:
         return False
     here, now = data.p_lo[0], data.v_lo[0]
@@ -119,7 +120,7 @@ def solve_clear(
             across = [ob for ob, n in zip(chosen, separation.normals, strict=True) if n.any()]
             soft_separation = build_separation(tuple(chosen), p_lo, p_hi, spans, across=False)
             softened = model.solve(data, warm, soft_separation)
-            if not _brakes_clear_where(softened, across, model, data):
+            if not _into_contact_braking_avoids(softened, across, model, data):
                 separation, solution = soft_separation, softened
             else:
                 solution.solver_s += softened.solver_s
