@@ -582,7 +582,8 @@ class MapModel:
 
 
 def confirm_duration(duration: float) -> float:
-    """How long the run that confirms a ``job_not_done`` finding lasts (`CONFIRM_FACTOR`)."""
+    """How long the run that confirms a ``job_not_done`` or ``stuck_home`` finding lasts
+    (`CONFIRM_FACTOR`)."""
     return max(CONFIRM_FACTOR * duration, duration + CONFIRM_EXTRA_S)
 
 
