@@ -171,7 +171,6 @@ class TripModel:
         self.time_limit_s = time_limit_s
         self.max_nodes = max_nodes
         self._dims = (dt, a_max, weights)
-        self.dt, self.a_max = dt, a_max
         if interface is Interface.DIRECT:
             # Each solve builds its own bounded MILP (`bounded`): no Pyomo model at all.
             self._faces = TripFaces.of(trip)
@@ -199,6 +198,16 @@ class TripModel:
         ):
             setattr(cfg, name, False)
         cfg.update_parameters = True
+
+    @property
+    def dt(self) -> float:
+        """The control period (s) the model was built for."""
+        return self._dims[0]
+
+    @property
+    def a_max(self) -> float:
+        """The robot's acceleration bound per axis (m/s^2) the model was built for."""
+        return self._dims[1]
 
     def _options(self) -> dict[str, object]:
         return dict(

@@ -83,8 +83,7 @@ def robots_to_avoid(
             # (a failed solve) or to re-plan: keep clear of the box round both, whichever robot
             # yields (against its plan alone, a robot tailed the other 0.7 m behind and met it
             # when that one braked; tests/test_mpc_contact.py).
-            stop = np.array(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, n.limits(spec).a_max, N))
-            stop = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], N + 1 - len(stop), 0)])
+            stop = brake_after(obs.t, (n.x, n.y), (n.vx, n.vy), dt, n.limits(spec).a_max, N)
             if (
                 respect_priority
                 and outranks(obs, n)
@@ -277,8 +276,7 @@ def brake_runs_into(
     if leaves_floor(obs, spec, floor):
         return True
     dt = spec.period
-    stop = np.array(braking_path(obs.t, obs.x, obs.y, obs.vx, obs.vy, dt, spec.a_max, horizon))
-    p = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], horizon + 1 - len(stop), 0)])
+    p = brake_after(obs.t, (obs.x, obs.y), (obs.vx, obs.vy), dt, spec.a_max, horizon)
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, horizon)
         reach = spec.radius + float(n.radius)
@@ -291,10 +289,8 @@ def brake_runs_into(
             # three robots in a lane to one station, the middle one, held for the lowest,
             # braked into the way of the highest, which had stopped yielding to it to wait
             # its turn: 7 mm of contact).
-            stop = np.array(
-                braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, n.limits(spec).a_max, horizon)
-            )
-            theirs = np.vstack([stop[:, 1:], np.repeat(stop[-1:, 1:], len(p) - len(stop), 0)])
+            a_max = n.limits(spec).a_max
+            theirs = brake_after(obs.t, (n.x, n.y), (n.vx, n.vy), dt, a_max, horizon)
             if min(closest_approach(p, centres), closest_approach(p, theirs)) < reach:
                 return True
     return False
@@ -317,7 +313,12 @@ def paths_of(obs: Observation, n: Neighbour, spec: RobotSpec, horizon: int) -> l
 
 
 def brake_after(
-    t: float, p: np.ndarray, v: np.ndarray, dt: float, a_max: float, steps: int
+    t: float,
+    p: np.ndarray | tuple[float, float],
+    v: np.ndarray | tuple[float, float],
+    dt: float,
+    a_max: float,
+    steps: int,
 ) -> np.ndarray:
     """Positions ``(steps+1, 2)``, one a period from `t`, of braking along the line of travel
     from `p` at velocity `v` (`fallback.braking_path`), at rest once stopped."""

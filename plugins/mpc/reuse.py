@@ -18,7 +18,6 @@ import numpy as np
 
 from fleet.plugins import Observation, RobotSpec
 from fleet.printing import CapSchedule
-from fleet_plugins.mpc.fallback import braking_path
 from fleet_plugins.mpc.model import Solution
 from fleet_plugins.mpc.neighbours import brake_after, closest_approach, outranks, paths_of
 from fleet_plugins.mpc.separation import at_rest, predict
@@ -67,8 +66,7 @@ def clear_of_all(obs: Observation, spec: RobotSpec, p: np.ndarray, margin: float
     for n in obs.neighbours:
         centres = predict(n, obs.t, dt, N)
         a_max = n.limits(spec).a_max  # it brakes by its own bound (a fleet may mix robots)
-        stop = np.asarray(braking_path(obs.t, n.x, n.y, n.vx, n.vy, dt, a_max, N))[:, 1:]
-        stop = np.vstack([stop, np.repeat(stop[-1:], N + 1 - len(stop), axis=0)])
+        stop = brake_after(obs.t, (n.x, n.y), (n.vx, n.vy), dt, a_max, N)
         ends = np.stack([centres[:-1], centres[1:], stop[:-1], stop[1:]])  # (4, N, 2)
         # (A plan kept to the margin by a solve sits on it to rounding: 0.8999999999999986 m.)
         half = spec.radius + float(n.radius) + margin - PLAN_MATCH
