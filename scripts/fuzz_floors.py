@@ -1283,20 +1283,16 @@ def report(tally: Tally, out_dir: Path, elapsed: float) -> str:
         f"floors: {len(outs)} ({len(ran)} run, {len(refused)} refused), "
         f"{len(failed)} with findings; {elapsed:.0f} s wall",
     ]
-    late = [o for o in outs if _has(o, "job_late")]
-    if late:
-        lines.append(
-            "late jobs (not done at the end, done in a longer run of the case; "
-            f"informational): {tally.kinds()['job_late'][0]} in {len(late)} runs, "
-            f"{sum(1 for o in late if o.status != 'failed')} of them without other findings"
-        )
-    home = [o for o in outs if _has(o, "home_late")]
-    if home:
-        lines.append(
-            "robots home late (held away from home at the end, home in a longer run of the "
-            f"case; informational): {tally.kinds()['home_late'][0]} in {len(home)} runs, "
-            f"{sum(1 for o in home if o.status != 'failed')} of them without other findings"
-        )
+    for kind, what in (
+        ("job_late", "late jobs (not done at the end, done in a longer run of the case"),
+        ("home_late", "robots home late (held away from home at the end, home in a longer run"),
+    ):
+        runs = [o for o in outs if _has(o, kind)]
+        if runs:
+            lines.append(
+                f"{what}; informational): {tally.kinds()[kind][0]} in {len(runs)} runs, "
+                f"{sum(1 for o in runs if o.status != 'failed')} of them without other findings"
+            )
     by_ctl = Counter(o.controller for o in ran)
     walls = [o.wall_s for o in ran]
     if walls:
