@@ -1,7 +1,8 @@
 """When the MPC has no plan to follow (plugins/mpc/fallback.py): braking stays in the free space,
 judged with shapely from the obstacle's own polygon (the case a fuzz floor found, s41-0109: a
 robot held while skimming a rotated wall, and random approaches to that wall); a plan that keeps
-a robot where it is, off its goal with nobody about, is a trap (`stays_put`, s41-0086)."""
+a robot where it is, off its goal with nobody about (or only robots standing still), is a
+trap (`stays_put`, s41-0086)."""
 
 from __future__ import annotations
 
@@ -123,8 +124,9 @@ def test_a_plan_that_keeps_a_robot_at_rest_off_its_goal_with_nobody_about_stays_
     assert not stays_put(at(28.0, 49.0, vx=0.1), here, goal, RADIUS)  # not at rest
     assert not stays_put(at(28.0, 49.0), here, (28.2, 49.1), RADIUS)  # on its goal
     assert not stays_put(at(28.0, 49.0, speed_cap=0.0), here, goal, RADIUS)  # held by a cap
-    other = Neighbour("r01", 30.0, 49.0, 0.0, 0.0, RADIUS, 1, ())
+    other = Neighbour("r01", 30.0, 49.0, 0.2, 0.0, RADIUS, 1, ())
     assert not stays_put(at(28.0, 49.0, neighbours=(other,)), here, goal, RADIUS)  # waits
+    # One standing still changes nothing from tick to tick: `test_mpc_stand_still.py`.
 
 
 def test_a_plan_that_sets_off_only_later_with_nobody_about_stays_put_too() -> None:

@@ -101,10 +101,10 @@ class MPCController(Controller):
     A solve with no usable solution (node limit without incumbent, the wall-clock guard,
     infeasible, solver error) falls back (`recover.fall_back`) to the previous plan one step on if
     the robot is on it and it keeps clear of the neighbours, else to braking (`fallback.brake`); a
-    new trip follows, as after a plan that keeps it at rest off its goal with nobody about
-    (`fallback.stays_put`). With no goal, or no path to it, it brakes, or follows its plan where
-    braking would leave the floor or a zone's limit (`recover.stop`). Each solved tick's command
-    carries a `SolveReport`.
+    new trip follows, as after a plan that keeps it at rest off its goal with no robot about
+    that moves (`fallback.stays_put`). With no goal, or no path to it, it brakes, or follows its
+    plan where braking would leave the floor or a zone's limit (`recover.stop`). Each solved
+    tick's command carries a `SolveReport`.
 
     Parameters
     ----------
@@ -297,7 +297,7 @@ class MPCController(Controller):
         if solution.outcome.usable:
             assert solution.p is not None and solution.u is not None
             self._last, self._last_t, self._last_model = solution, obs.t, self._model
-            if stays_put(obs, solution.p, goal, spec.radius):
+            if stays_put(obs, solution.p, goal, spec.radius, self._trip.reference.positions[0]):
                 self._model = None  # a trap nothing else ends: a new trip from here
             cmd = self._go.command(obs, spec, solution.p, solution.u[0], report)  # (`start`)
             self._repeats.waited(obs, cmd.ax, cmd.ay, spec.period)  # standing: no cycle

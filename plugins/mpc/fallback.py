@@ -6,8 +6,8 @@ line of travel (`brake`); with other robots about, the braking path is its plan
 (`braking_path`), so that they avoid where it stops rather than where it was heading. Given
 the floor, a braking path that would leave the free space (a robot skimming a wall at an angle)
 is replaced by one that brakes the axes at other rates and stays in it (`BRAKE_RATES`).
-A usable plan that keeps the robot where it is, off its goal with nobody about, is a trap of
-the same kind: `stays_put` tells the controller to plan a new trip.
+A usable plan that keeps the robot where it is, off its goal with nobody about but robots
+standing still, is a trap of the same kind: `stays_put` tells the controller to plan a new trip.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import shapely
@@ -23,7 +24,14 @@ from shapely.geometry.base import BaseGeometry
 
 from fleet.floor import BOUNDARY_BAND, Floor
 from fleet.paths.limits import SpeedLimits
-from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveReport
+from fleet.plugins import (
+    Command,
+    ControlStatus,
+    Neighbour,
+    Observation,
+    RobotSpec,
+    SolveReport,
+)
 from fleet.plugins.robot import DoubleIntegrator, brake_input
 from fleet_plugins.mpc.model import Solution
 
@@ -176,23 +184,48 @@ def free_brake(
     return first
 
 
-def stays_put(obs: Observation, p: np.ndarray, goal: tuple[float, float], radius: float) -> bool:
+def stays_put(
+    obs: Observation,
+    p: np.ndarray,
+    goal: tuple[float, float],
+    radius: float,
+    trip_start: np.ndarray | None = None,
+) -> bool:
     """Whether plan `p` (``(N+1, 2)``) keeps the robot, at rest more than `radius` from its
-    `goal` with no robot in sight and no print cap holding it, where it is over this tick
-    (its first input is nil: ``p[0] = p[1] = p[2]``). Nothing changes such a tick's solve, so
-    it would stay for good (fuzz s41-0086: a robot pushed off its reference to the edge of a
-    region from which the regions round its reference led nowhere within the horizon stood
-    still, every solve optimal, for the last 90 s): the caller plans a new trip from where the
-    robot is. A plan that sets off only later is such a wait too: followed for a few ticks
-    and solved again alike, it never set off (fuzz s91-0759: 3.3 m off its reference, the
-    last 90 s of the run, each plan waiting 4 steps or more)."""
-    if obs.neighbours or max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
+    `goal` with every robot in sight standing still (at rest, its plan too) and no print cap
+    holding it, where it is over this tick (its first input is nil: ``p[0] = p[1] = p[2]``).
+    Nothing changes such a tick's solve, so it would stay for good (fuzz s41-0086: a robot
+    pushed off its reference to the edge of a region from which the regions round its
+    reference led nowhere within the horizon stood still, every solve optimal, for the last
+    90 s): the caller plans a new trip from where the robot is. A plan that sets off only later
+    is such a wait too: followed for a few ticks and solved again alike, it never set off
+    (fuzz s91-0759: 3.3 m off its reference, the last 90 s of the run, each plan waiting 4
+    steps or more). A robot standing still in sight is no reason to wait either (fuzz
+    s51-0144: 100 s at a region's edge, 1.2 m off its reference, an idle robot 3.1 m away);
+    one that moves may be, and so may one that stands where a trip planned from here (the
+    trip's reference starts at `trip_start`) still stays: another would be the same."""
+    if max(abs(obs.vx), abs(obs.vy)) > REST_SPEED:
+        return False
+    if any(not _standing(n) for n in obs.neighbours):
+        return False
+    if obs.neighbours and trip_start is not None and _within(trip_start, obs.x, obs.y):
         return False
     if obs.speed_cap is not None and obs.speed_cap <= 0.0:
         return False
     if math.hypot(goal[0] - obs.x, goal[1] - obs.y) <= radius:
         return False
     return bool(np.all(np.abs(np.asarray(p)[:3] - np.array([obs.x, obs.y])) <= STILL_M))
+
+
+def _standing(n: Neighbour) -> bool:
+    """Whether neighbour `n` is at rest and its plan (if any) keeps it where it is."""
+    if max(abs(n.vx), abs(n.vy)) > REST_SPEED:
+        return False
+    return all(_within((x, y), n.x, n.y) for _, x, y in n.plan)
+
+
+def _within(point: Sequence[float] | np.ndarray, x: float, y: float) -> bool:
+    return abs(point[0] - x) <= STILL_M and abs(point[1] - y) <= STILL_M
 
 
 def braking_path(
