@@ -85,6 +85,21 @@ def test_jobs_are_released_assigned_started_and_delivered(scenario_file):
     assert sum(p["jobs_completed"] for p in s["per_robot"]) == s["jobs"]["completed"]
 
 
+def test_poisson_jobs_stop_at_release_until_and_the_fleet_works_off_the_rest(scenario_file):
+    text = scenario_file.read_text()
+    scenario_file.write_text(text.replace("[jobs]\n", "[jobs]\nrelease_until_s = 60\n"))
+    batch = World(load_scenario(scenario_file)).run()
+    scenario_file.write_text(text)
+    stream = World(load_scenario(scenario_file)).run()
+    released = [(rec.job.id, rec.job.released_s) for rec in batch.jobs]
+    # The same jobs as the endless stream's up to 60 s, and none after.
+    assert released and all(t <= 60.0 for _, t in released)
+    assert released == [(rec.job.id, rec.job.released_s) for rec in stream.jobs][: len(released)]
+    assert len(stream.jobs) > len(released)
+    # 180 s with nothing new: every job of the batch is delivered.
+    assert batch.summary["jobs"]["completed"] == len(released)
+
+
 def test_same_seed_same_digest_other_seed_other_digest(scenario_file):
     sc = load_scenario(scenario_file)
     first = World(sc).run().summary

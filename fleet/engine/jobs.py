@@ -264,6 +264,9 @@ class JobSource:
         n = 0
         while True:
             t += float(self.rng.exponential(mean_gap))
+            until = self.config.release_until_s
+            if until is not None and t > until:
+                return
             n += 1
             station = self.stations[int(self.rng.integers(len(self.stations)))]
             due = None if self.config.due_in_s is None else t + self.config.due_in_s

@@ -125,6 +125,8 @@ class JobsConfig:
     rate_per_h: float = 60.0
     stations: tuple[str, ...] = ()  # destinations; empty -> every station that is not a depot
     due_in_s: float | None = None  # due time relative to release, for Poisson jobs
+    #: Poisson jobs are released until this time (s), then none (None: to the end of the run).
+    release_until_s: float | None = None
     scripted: tuple[ScriptedJob, ...] = ()
     parts: tuple[str, ...] = ()  # Poisson jobs print one of these parts, drawn uniformly
     #: A job handed back more often than this (robots blocked, agents failed) is given up.
@@ -697,6 +699,7 @@ def _jobs(src: str, jobs: JobsTable, parts: dict[str, Path]) -> JobsConfig:
         rate_per_h=jobs.rate_per_h,
         stations=tuple(jobs.stations),
         due_in_s=jobs.due_in_s,
+        release_until_s=jobs.release_until_s,
         scripted=scripted,
         parts=tuple(jobs.parts),
         max_handbacks=jobs.max_handbacks,

@@ -211,6 +211,13 @@ class JobsTable(_Table, kw_only=True):
     due_in_s: Annotated[
         Positive | None, Meta(description="Due time after release (s), for Poisson jobs.")
     ] = None
+    release_until_s: Annotated[
+        Positive | None,
+        Meta(
+            description="Poisson jobs are released until this time (s); the fleet then works "
+            "off what is left (default: to the end of the run)."
+        ),
+    ] = None
     scripted: list[ScriptedJobTable] = []
     parts: Annotated[
         list[str], Meta(description="Poisson jobs print one of these parts, drawn uniformly.")
