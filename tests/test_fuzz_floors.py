@@ -150,6 +150,18 @@ def test_a_fleet_range_changes_the_robot_count_and_keeps_the_floor():
             fz.parser().parse_args(["--fleet", bad])
 
 
+def test_mpc_cases_draw_one_to_eight_robots_by_default():
+    # Issue 16 asks fleets of 1-8 robots for either controller; the MPC drew only 1-3.
+    mpc = [fz.generate_case(5, index, "mpc") for index in range(40)]
+    counts = [case.scen["robots"]["count"] for case in mpc]
+    assert all(1 <= n <= 8 for n in counts) and max(counts) > 3, counts
+    # The same cases as `--fleet 1-8`, floors and all.
+    for index, case in enumerate(mpc[:8]):
+        ranged = fz.generate_case(5, index, "mpc", fleet=(1, 8))
+        assert fz.dump_toml(case.floor) == fz.dump_toml(ranged.floor)
+        assert case.scen == ranged.scen
+
+
 def test_a_clean_trajectory_passes(oracle):
     run = record({"r1": line(0, 0.25, (15, 2), (15, 8), 40)}, v_max=1.0)
     assert oracle.judge(run) == []
