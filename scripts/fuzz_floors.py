@@ -29,8 +29,9 @@ and the run's record (samples, events, print caps). Finding kinds:
                   common samples where both move on straight lines)
 ``stuck``         a robot with a job it has not reached stays within 0.5 m for the last
                   `STUCK_S` seconds of the run
-``stuck_home``    an idle robot away from home (return_home) stays put the same way, or
-                  stays within `WANDER_M` and gets no nearer home
+``stuck_home``    an idle robot away from home (return_home; any robot's start spot, as
+                  idle robots trade homes) stays put the same way, or stays within
+                  `WANDER_M` and gets no nearer home
 ``job_waiting``   a job stays unassigned for `WAIT_S` seconds while a robot is idle
 ``job_not_done``  a job released `DONE_GRACE_S` seconds or more before the end is neither
                   delivered nor failed with a reason, and is still not in a longer run of the
@@ -928,7 +929,10 @@ class Oracle:
                             )
                         )
                 elif not jobs and run.return_home.get(robot):
-                    home = xy[0]
+                    # Idle robots of one kind trade home spots (fleet.engine.homes): home is
+                    # the start spot nearest to where the robot ended.
+                    starts = _start_spots(run.trajectories)
+                    home = starts[int(np.argmin(np.hypot(*(starts - xy[-1]).T)))]
                     away = float(math.dist(home, xy[-1]))
                     gap = np.hypot(*(xy[win] - home).T)
                     # Still, or wandering round a spot away from home all along, and no nearer
@@ -1112,17 +1116,19 @@ def confirm_home(
 ) -> list[Finding]:
     """`findings` with each ``stuck_home`` (an idle robot held away from home up to `end`, the
     first run's end) judged by the run of `long_s` seconds whose trajectories (robot -> t, xy,
-    v) are `long_trajectories`: a robot within `STUCK_RADIUS_M` of home (where it started) at
-    some time after `end` becomes ``home_late``; the others stay, saying the longer run
-    confirmed them."""
+    v) are `long_trajectories`: a robot within `STUCK_RADIUS_M` of a home (where a robot
+    started: idle robots of one kind trade them) at some time after `end` becomes
+    ``home_late``; the others stay, saying the longer run confirmed them."""
     out = []
+    starts = _start_spots(long_trajectories)
     for f in findings:
         if f.kind != "stuck_home":
             out.append(f)
             continue
         t, xy, _ = long_trajectories[f.robot]
         after = t > end
-        home = t[after][np.hypot(*(xy[after] - xy[0]).T) <= STUCK_RADIUS_M]
+        gap = np.min(np.hypot(*(xy[after][:, None, :] - starts[None]).transpose(2, 0, 1)), axis=1)
+        home = t[after][gap <= STUCK_RADIUS_M]
         if len(home):
             how = f"home at {home[0]:.1f} s in a {long_s:g}-s run of the same case"
             out.append(Finding("home_late", f.robot, float(home[0]), f"{f.detail}; {how}"))
@@ -1130,6 +1136,13 @@ def confirm_home(
             why = f"confirmed by a {long_s:g}-s run of the same case (not home at its end)"
             out.append(replace(f, detail=f"{f.detail}; {why}"))
     return out
+
+
+def _start_spots(
+    trajectories: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> np.ndarray:
+    """``(n, 2)``: where each robot of a run started (every robot's home at first)."""
+    return np.array([xy[0] for _, xy, _ in trajectories.values() if len(xy)])
 
 
 def _to_confirm(f: Finding) -> bool:

@@ -60,6 +60,8 @@ class RobotState:
     queue: list[JobRecord] = field(default_factory=list)
     jobs_completed: int = 0
     return_home: bool = True
+    #: Its `[[robots]]` group (position in `Scenario.robots`): its start stations, its kind.
+    group: int = 0
     #: The latest plan the robot's controller sent, ``(t, x, y)`` samples (empty: none yet),
     #: and the same thinned to `sensing.PLAN_SPACING_S` for the neighbours' observations.
     plan: tuple[tuple[float, float, float], ...] = ()
@@ -188,7 +190,7 @@ def build_robots(scenario: Scenario, homes: list[tuple[float, float]]) -> dict[s
     starting at its home in `homes` (in robot order) and ranked."""
     robots: dict[str, RobotState] = {}
     ids = iter(robot_specs(scenario))
-    for group in scenario.robots:
+    for g, group in enumerate(scenario.robots):
         spec = RobotSpec(group.v_max, group.a_max, group.radius, group.period_s)
         model = DoubleIntegrator(group.period_s, group.a_max)
         rate = None if group.turn_radius_m is None else group.v_max / group.turn_radius_m
@@ -203,6 +205,7 @@ def build_robots(scenario: Scenario, homes: list[tuple[float, float]]) -> dict[s
                 hx,
                 hy,
                 return_home=group.return_home,
+                group=g,
                 turn_rate=rate,
                 turn_settle_s=group.turn_settle_s,
             )

@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
+from fleet.engine.homes import trade_home
 from fleet.engine.jobs import JobRecord
 from fleet.engine.makeway import MakeWay
 from fleet.engine.motion import RobotState, Turning, at_rest_near
@@ -181,6 +182,11 @@ class Sensing:
             r.watched_goal, r.best_gap, r.progress_s, r.blockers = goal, gap, now, ()
             r.stalled = False
             r.progress_at, r.route_then, r.route_seen = (r.x, r.y), None, (r.x, r.y)
+            return
+        # Held up on its way home: an idle robot of its kind may trade homes with it (`homes`);
+        # the new home is watched from the next tick.
+        held = goal == r.home and t - r.progress_s >= IDLE_ASK_S
+        if held and trade_home(r, self.robots.values(), tol):
             return
         # At a coarse period robots stand further off (a step of a_max*dt**2 per axis that a
         # neighbour may take unseen is kept clear of): such a stand-off counts too.
