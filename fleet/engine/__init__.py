@@ -6,6 +6,7 @@ delayed inputs, turning in place), `jobs` (job records and where jobs come from)
 (release, print start, arrival, delivery, judging), `dispatch` (assignments, auctions,
 hand-backs), `sensing` (observations, neighbours and their plans, priorities, deadlock watch),
 `makeway` and `queueing` (robots stepping aside, and waiting their turn short of a station),
+`homes` (a robot held up on its way home trading homes with a parked one),
 `rounds` (the bus round), `breakdowns` (robots failing and repaired). `agents` runs the robot
 agents' processes; `safety` judges every step; `recorder` keeps what happened and writes the
 run directory, `summary` makes summary.json and the CSV rows from it. The engine may import
