@@ -929,8 +929,8 @@ class Oracle:
                             )
                         )
                 elif not jobs and run.return_home.get(robot):
-                    # Idle robots of one kind trade home spots (fleet.engine.homes): home is
-                    # the start spot nearest to where the robot ended.
+                    # Idle robots of one group trade home spots (fleet.engine.homes): home
+                    # is the start spot nearest to where the robot ended.
                     starts = _start_spots(run.trajectories)
                     home = starts[int(np.argmin(np.hypot(*(starts - xy[-1]).T)))]
                     away = float(math.dist(home, xy[-1]))
@@ -1117,7 +1117,7 @@ def confirm_home(
     """`findings` with each ``stuck_home`` (an idle robot held away from home up to `end`, the
     first run's end) judged by the run of `long_s` seconds whose trajectories (robot -> t, xy,
     v) are `long_trajectories`: a robot within `STUCK_RADIUS_M` of a home (where a robot
-    started: idle robots of one kind trade them) at some time after `end` becomes
+    started: idle robots of one group trade them) at some time after `end` becomes
     ``home_late``; the others stay, saying the longer run confirmed them."""
     out = []
     starts = _start_spots(long_trajectories)

@@ -183,8 +183,8 @@ class Sensing:
             r.stalled = False
             r.progress_at, r.route_then, r.route_seen = (r.x, r.y), None, (r.x, r.y)
             return
-        # Held up on its way home: an idle robot of its kind may trade homes with it (`homes`);
-        # the new home is watched from the next tick.
+        # Held up on its way home: it may trade homes with a parked robot of its group
+        # (`homes`); the new home is watched from the next tick.
         held = goal == r.home and t - r.progress_s >= IDLE_ASK_S
         if held and trade_home(r, self.robots.values(), tol):
             return
