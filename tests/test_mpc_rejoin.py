@@ -19,17 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from fleet.floor import load_floor
-from fleet.paths import PathPlanner
-from fleet.plugins import (
-    ControllerContext,
-    ControlStatus,
-    Neighbour,
-    Observation,
-    RobotSpec,
-    SolverOutcome,
-)
-from fleet_plugins.mpc.controller import MPCController
-from fleet_plugins.mpc.model import Solution
+from fleet.plugins import Neighbour, RobotSpec
+from tests.mpc_trapped import at_rest_on_its_plan, drive, planned
 
 CASE = Path(__file__).resolve().parent / "liveness_cases" / "mpc_past_a_corner"
 SPEC = RobotSpec(v_max=0.97, a_max=1.58, radius=0.405, period=0.5)
@@ -42,10 +33,7 @@ R03 = Neighbour("r03", 18.37, -31.52, 0.0, 0.0, radius=0.405, priority=1)
 
 def test_a_robot_in_a_region_its_progress_has_passed_drives_on() -> None:
     floor = load_floor(CASE / "floor.toml")
-    c = MPCController()
-    c.reset(ControllerContext("r02", SPEC, floor, PathPlanner(floor, SPEC.v_max, SPEC.a_max)))
-    first = c.compute(Observation("r02", 62, 31.0, *START, 0.0, 0.0, goal=GOAL, job="j00002"))
-    assert first.solve is not None and first.solve.outcome.usable
+    c = planned(floor, "r02", SPEC, START, GOAL, 31.0, 62, "j00002")
     trip = c._trip
     assert trip is not None
     # The progress (the nearest sample) is past the corner: none of the chords round it
@@ -54,27 +42,10 @@ def test_a_robot_in_a_region_its_progress_has_passed_drives_on() -> None:
     near = int(trip.progress(np.array([STUCK]), 0, 8)[0])
     assert len(here) == 1 and not here & trip.corridor(near - 1, near + 1)
     # The state the run was in: at rest on its previous plan, a plan at rest in that region.
-    N, t = c.horizon, 45.0
-    c._last = Solution(
-        SolverOutcome.OPTIMAL,
-        0.0,
-        p=np.tile(STUCK, (N + 1, 1)),
-        v=np.zeros((N + 1, 2)),
-        u=np.zeros((N, 2)),
-        regions=np.full(N - 1, next(iter(here))),
-    )
-    c._last_t, c._last_model, c._progress = t - SPEC.period, c._model, near
-    x, y, vx, vy = *STUCK, 0.0, 0.0
-    for tick in range(12):  # 6 s of the double integrator, as the engine steps it
-        obs = Observation(
-            "r02", 90 + tick, t, x, y, vx, vy, goal=GOAL, job="j00002", neighbours=(R03,)
-        )
-        cmd = c.compute(obs)
-        assert cmd.status is ControlStatus.OK
-        x, y = x + SPEC.period * vx, y + SPEC.period * vy
-        vx, vy = vx + SPEC.period * cmd.ax, vy + SPEC.period * cmd.ay
-        t += SPEC.period
+    at_rest_on_its_plan(c, STUCK, 45.0, near)
+    # 6 s of the double integrator, as the engine steps it.
+    x, _ = end = drive(c, STUCK, 45.0, 90, 12, GOAL, "j00002", lambda t: (R03,))
     # It drove on along its route, east past the corner. On main every solve was optimal and
     # kept it within a millimetre of STUCK.
-    assert math.dist((x, y), STUCK) > 1.0
+    assert math.dist(end, STUCK) > 1.0
     assert x > STUCK[0] + 1.0

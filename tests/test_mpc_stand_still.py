@@ -21,18 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from fleet.floor import load_floor
-from fleet.paths import PathPlanner
-from fleet.plugins import (
-    ControllerContext,
-    ControlStatus,
-    Neighbour,
-    Observation,
-    RobotSpec,
-    SolverOutcome,
-)
-from fleet_plugins.mpc.controller import MPCController
+from fleet.plugins import Neighbour, Observation, RobotSpec
 from fleet_plugins.mpc.fallback import stays_put
-from fleet_plugins.mpc.model import Solution
+from tests.mpc_trapped import at_rest_on_its_plan, drive, planned
 
 CASE = Path(__file__).resolve().parent / "liveness_cases" / "mpc_at_a_region_edge"
 SPEC = RobotSpec(v_max=0.89, a_max=0.41, radius=0.405, period=0.2)
@@ -50,45 +41,11 @@ def standing(t: float) -> Neighbour:
 
 def test_a_robot_trapped_at_a_region_edge_sets_off_past_one_standing_in_sight() -> None:
     floor = load_floor(CASE / "floor.toml")
-    c = MPCController()
-    c.reset(ControllerContext("r08", SPEC, floor, PathPlanner(floor, SPEC.v_max, SPEC.a_max)))
-    first = c.compute(Observation("r08", 396, 79.2, *START, 0.0, 0.0, goal=GOAL, job="j00014"))
-    assert first.solve is not None and first.solve.outcome.usable
-    trip = c._trip
-    assert trip is not None
+    c = planned(floor, "r08", SPEC, START, GOAL, 79.2, 396, "j00014")
     # The state the run was in: at rest on its previous plan, at rest in the one region that
     # holds it, its progress the sample where the reference crosses into the strip.
-    here = trip.holding(np.array(STUCK))
-    assert len(here) == 1
-    N, t = c.horizon, 130.6
-    c._last = Solution(
-        SolverOutcome.OPTIMAL,
-        0.0,
-        p=np.tile(STUCK, (N + 1, 1)),
-        v=np.zeros((N + 1, 2)),
-        u=np.zeros((N, 2)),
-        regions=np.full(N - 1, next(iter(here))),
-    )
-    c._last_t, c._last_model, c._progress = t - SPEC.period, c._model, 6
-    x, y, vx, vy = *STUCK, 0.0, 0.0
-    for tick in range(20):  # 4 s of the double integrator, as the engine steps it
-        obs = Observation(
-            "r08",
-            653 + tick,
-            t,
-            x,
-            y,
-            vx,
-            vy,
-            goal=GOAL,
-            job="j00014",
-            neighbours=(standing(t),),
-        )
-        cmd = c.compute(obs)
-        assert cmd.status is ControlStatus.OK
-        x, y = x + SPEC.period * vx, y + SPEC.period * vy
-        vx, vy = vx + SPEC.period * cmd.ax, vy + SPEC.period * cmd.ay
-        t += SPEC.period
+    at_rest_on_its_plan(c, STUCK, 130.6, 6)
+    x, y = drive(c, STUCK, 130.6, 653, 20, GOAL, "j00014", lambda t: (standing(t),))  # 4 s
     # A new trip from where it stood, and it drove off on it, towards its goal to the north.
     # Before, every solve was optimal and kept it within a micrometre of STUCK.
     assert c.trips == 2
