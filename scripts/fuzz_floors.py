@@ -903,6 +903,9 @@ class Oracle:
                     break
         # (d) no robot stuck for good
         if long_run:
+            # Idle robots of one group trade home spots (fleet.engine.homes): an idle robot's
+            # home is the start spot nearest to where it ended.
+            starts = _start_spots(run.trajectories)
             for robot in robots:
                 t, xy, _ = run.trajectories[robot]
                 if len(t) == 0 or t[-1] < end - 1.0:
@@ -929,9 +932,6 @@ class Oracle:
                             )
                         )
                 elif not jobs and run.return_home.get(robot):
-                    # Idle robots of one group trade home spots (fleet.engine.homes): home
-                    # is the start spot nearest to where the robot ended.
-                    starts = _start_spots(run.trajectories)
                     home = starts[int(np.argmin(np.hypot(*(starts - xy[-1]).T)))]
                     away = float(math.dist(home, xy[-1]))
                     gap = np.hypot(*(xy[win] - home).T)
