@@ -55,6 +55,7 @@ from typing import Any
 
 import numpy as np
 
+from fleet.cli import _positive_float
 from fleet.engine import World
 from fleet.engine.agents import split_robots
 from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
@@ -390,7 +391,10 @@ def main() -> None:
     ap.add_argument("--per-robot-rate", type=float, default=120.0, help="sweep: jobs/robot-hour")
     ap.add_argument("--out", type=Path, help="sweep: write each run's directory under this")
     ap.add_argument(
-        "--release-until", type=float, metavar="S", help="release jobs only for the first S s"
+        "--release-until",
+        type=_positive_float,  # what `fleet run --duration` takes: > 0, named when bad
+        metavar="S",
+        help="release jobs only for the first S s",
     )
     ap.add_argument(
         "--options", nargs="*", default=[], metavar="K=V", help="sweep: MPC options (TOML values)"
