@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from fleet.cli import _positive_float
+from fleet.cli import _non_negative_int, _positive_float, _positive_int
 from fleet.engine import World
 from fleet.engine.agents import split_robots
 from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
@@ -370,11 +370,15 @@ def sweep(
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--minutes", type=float, default=30.0, help="simulated minutes (MPC fleet)")
-    ap.add_argument("--robots", type=int, default=20)
-    ap.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--baseline-robots", type=int, default=1000)
-    ap.add_argument("--baseline-seconds", type=float, default=60.0)
+    # Counts and times are checked as `fleet run` checks them: a bad value is refused by name
+    # before anything runs (a negative --duration was a traceback from the scenario loader).
+    ap.add_argument(
+        "--minutes", type=_positive_float, default=30.0, help="simulated minutes (MPC fleet)"
+    )
+    ap.add_argument("--robots", type=_positive_int, default=20)
+    ap.add_argument("--workers", type=_non_negative_int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--baseline-robots", type=_positive_int, default=1000)
+    ap.add_argument("--baseline-seconds", type=_positive_float, default=60.0)
     ap.add_argument("--skip-mpc", action="store_true")
     ap.add_argument("--skip-baseline", action="store_true", help="no follower fleet")
     ap.add_argument(
@@ -385,14 +389,20 @@ def main() -> None:
         help="MPC fleet: the [bus] lockstep modes to run",
     )
     ap.add_argument("--balance", action="store_true", help="only the work-balance analysis")
-    ap.add_argument("--rate", type=float, help="jobs per hour (default: the scenario's)")
-    ap.add_argument("--sweep", type=int, nargs="+", metavar="N", help="MPC fleet sizes to sweep")
-    ap.add_argument("--duration", type=float, default=120.0, help="simulated s per sweep run")
-    ap.add_argument("--per-robot-rate", type=float, default=120.0, help="sweep: jobs/robot-hour")
+    ap.add_argument("--rate", type=_positive_float, help="jobs per hour (default: the scenario's)")
+    ap.add_argument(
+        "--sweep", type=_positive_int, nargs="+", metavar="N", help="MPC fleet sizes to sweep"
+    )
+    ap.add_argument(
+        "--duration", type=_positive_float, default=120.0, help="simulated s per sweep run"
+    )
+    ap.add_argument(
+        "--per-robot-rate", type=_positive_float, default=120.0, help="sweep: jobs/robot-hour"
+    )
     ap.add_argument("--out", type=Path, help="sweep: write each run's directory under this")
     ap.add_argument(
         "--release-until",
-        type=_positive_float,  # what `fleet run --duration` takes: > 0, named when bad
+        type=_positive_float,
         metavar="S",
         help="release jobs only for the first S s",
     )

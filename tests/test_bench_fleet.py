@@ -1,12 +1,15 @@
-"""The fleet sweep's own contact check (scripts/bench_fleet.py): exact between samples."""
+"""The fleet sweep (scripts/bench_fleet.py): its own contact check, exact between samples, and
+its command line."""
 
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from fleet.engine.recorder import Trajectory
-from tests.scripts import load_script
+from tests.scripts import REPO_ROOT, load_script
 
 
 def world(paths: dict[str, list[tuple[float, float]]], radius: float = 0.4) -> SimpleNamespace:
@@ -56,3 +59,25 @@ def test_the_best_fixed_split_parts_robots_that_work_in_the_same_rounds() -> Non
     assert sorted(shares[0] + shares[1]) == robots
     for pair in (("r01", "r02"), ("r03", "r04")):
         assert len(set(pair) & set(shares[0])) == 1, shares
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (["--sweep", "2", "--duration", "-5"], "--duration: '-5': must be a number > 0"),
+        (["--sweep", "0"], "--sweep: '0': must be a whole number >= 1"),
+        (["--rate", "nan"], "--rate: 'nan': must be a number > 0"),
+        (["--workers", "1", "-1"], "--workers: '-1': must be a whole number >= 0"),
+        (["--robots", "two"], "--robots: 'two': must be a whole number >= 1"),
+    ],
+)
+def test_a_bad_count_or_time_is_refused_by_name_before_anything_runs(
+    args: list[str], named: str
+) -> None:
+    script = REPO_ROOT / "scripts" / "bench_fleet.py"
+    done = subprocess.run(
+        [sys.executable, str(script), *args], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 2, done.stderr
+    assert named in done.stderr and "Traceback" not in done.stderr
+    assert done.stdout == ""
