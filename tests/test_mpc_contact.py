@@ -44,7 +44,6 @@ from fleet.scenario import (
 )
 from fleet_plugins.mpc.controller import MPCController
 from fleet_plugins.mpc.neighbours import (
-    brake_after,
     brake_runs_into,
     clear_of_neighbours,
     close,
@@ -568,39 +567,3 @@ def test_a_held_mpc_robot_never_brakes_into_a_robot_standing_still() -> None:
     assert cmd.status is ControlStatus.OK and cmd.solve is not None  # it solved, not braked
     plan = np.array([s[1:] for s in cmd.plan])
     assert closest_approach(plan, np.tile([r37.x, r37.y], (len(plan), 1))) >= 0.8 - 1e-9
-
-
-def test_a_held_mpc_robot_keeps_the_margin_from_a_robot_that_stopped_on_its_braking_line() -> None:
-    # 80 MPC robots on the fleet scenario (bench_fleet.py --sweep 80 --duration 600
-    # --release-until 120 --seed 1, t = 355.5 s): r32 (priority 49), held for r52 (lower,
-    # moving, close), brakes along its line of travel; r36 (lower) has just stopped on that
-    # line. The brake alone would end 0.80 m from r36 (radii 0.4): no contact, so r32 braked on,
-    # and its next solve, starting inside the separation margin, passed r36 at 0.8005 m. A held
-    # robot now brakes only where its brake keeps the margin from robots at rest, as a reused
-    # plan's brake must (`reuse.brake_keeps_clear`); here it solves.
-    scenario = load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")
-    floor = World(scenario).floor
-    spec = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
-    r36 = Neighbour("r36", 71.99999999999987, 45.09999628147169, 0.0, 0.0, 0.4, 45,
-                    ((355.5, 71.99999999999987, 45.09999628147169),))  # fmt: skip
-    r52 = Neighbour("r52", 72.89999999999998, 45.0312500000001, 0.0, 0.1666512454296054, 0.4,
-                    29, ((355.5, 72.89999999999992, 45.0364564056788),
-                         (355.75, 72.89999999999998, 45.0729128113575),
-                         (356.25, 72.89999999999998, 45.1562384340723),
-                         (356.75, 72.89999999999998, 45.21288787975936),
-                         (361.5, 72.89999999999998, 45.21288787975936)))  # fmt: skip
-    obs = Observation("r32", 1422, 355.5, 71.69813371705133, 44.015568596495015,
-                      0.6080534124898804, 0.40393080692795214, goal=(77.0, 48.0),
-                      neighbours=(r36, r52), priority=49)  # fmt: skip
-    assert must_hold(obs, spec, 25, 0.1)  # r52 is close: r32 holds
-    stop = brake_after(obs.t, (obs.x, obs.y), (obs.vx, obs.vy), spec.period, spec.a_max, 25)
-    at_r36 = np.tile([r36.x, r36.y], (len(stop), 1))
-    assert 0.8 <= closest_approach(stop, at_r36) < 0.9  # clear, but inside the margin
-    assert not brake_runs_into(obs, spec, 25, floor)
-    assert brake_runs_into(obs, spec, 25, floor, margin=0.1)
-    controller = MPCController()
-    controller.reset(ControllerContext("r32", spec, floor, PathPlanner(floor, 1.0, 0.5)))
-    cmd = controller.compute(obs)
-    assert cmd.status is ControlStatus.OK and cmd.solve is not None  # it solved, not braked
-    plan = np.array([s[1:] for s in cmd.plan])
-    assert closest_approach(plan, at_r36[: len(plan)]) > closest_approach(stop, at_r36)

@@ -270,13 +270,13 @@ class MPCController(Controller):
         if (goal != self._goal or self._model is None) and not self._new_trip(obs, goal):
             return self._stop(obs, ControlStatus.FALLBACK)
         assert self._trip is not None and self._model is not None
-        margin = self.separation_margin_m
         hold = self.respect_priority and self.avoid_robots
-        hold = hold and must_hold(obs, spec, self.horizon, margin)
+        hold = hold and must_hold(obs, spec, self.horizon, self.separation_margin_m)
         if self._reusable(obs, hold):
             return self._reuse(obs)
-        # Held: brake, unless into a robot standing still (it may never give way) or off the floor.
-        if hold and not brake_runs_into(obs, spec, self.horizon, self.context.floor, margin):
+        # A close lower robot relies on this one's plan or braking path: no solve, unless that
+        # runs into a robot standing still (held too, it may not give way) or off the floor.
+        if hold and not brake_runs_into(obs, spec, self.horizon, self.context.floor):
             self._last = None
             return brake(obs, spec, self.horizon, ControlStatus.OK, self.context.floor)
         # A state met again in this trip: a cycle of reused plans; solve every tick from now.

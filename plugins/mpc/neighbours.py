@@ -256,15 +256,11 @@ def must_announce(obs: Observation, spec: RobotSpec, margin: float) -> bool:
 
 
 def brake_runs_into(
-    obs: Observation,
-    spec: RobotSpec,
-    horizon: int,
-    floor: Floor | None = None,
-    margin: float = 0.0,
+    obs: Observation, spec: RobotSpec, horizon: int, floor: Floor | None = None
 ) -> bool:
-    """Whether braking along the line of travel would bring this robot within `margin` of
-    contact with a neighbour predicted at rest for the horizon, or into contact with the plan
-    or the braking path of a moving one that outranks it, between the samples too; or, given the
+    """Whether braking along the line of travel would bring this robot into contact with a
+    neighbour predicted at rest for the horizon, or with the plan or the braking path of a
+    moving one that outranks it, between the samples too; or, given the
     `floor`, whether every brake of `fallback.free_brake` would leave its free space, or the
     one it takes break a zone's speed limit (`fallback.within_zones`). Such a
     robot may be held itself (`must_hold`: it only brakes, at rest it stays) and never give
@@ -274,13 +270,7 @@ def brake_runs_into(
     straight on, out of the free space, and never solved a feasible plan again (fuzz
     s31-0665: 270 fallbacks). So does one whose brake would cross into a slower zone faster
     than its limit: a brake knows no zones, and a robot held while heading for one entered it
-    at 0.605 m/s against 0.52 (fuzz s21-0854).
-
-    The `margin` is kept from robots at rest as a reused plan's brake keeps it
-    (`reuse.brake_keeps_clear`): at 80 MPC robots on the fleet scenario a held robot braked
-    straight on, unsolved for 4 ticks, to 0.81 m of a lower one that had stopped on its
-    braking line (radii 0.4), and its next solve, starting inside the margin, passed it at
-    0.8005 m (tests/test_mpc_contact.py)."""
+    at 0.605 m/s against 0.52 (fuzz s21-0854)."""
     if max(abs(obs.vx), abs(obs.vy)) <= REST_SPEED:
         return False
     if leaves_floor(obs, spec, floor):
@@ -291,7 +281,7 @@ def brake_runs_into(
         centres = predict(n, obs.t, dt, horizon)
         reach = spec.radius + float(n.radius)
         if at_rest(centres):
-            if closest_approach(p, centres) < reach + margin:
+            if closest_approach(p, centres) < reach:
                 return True
         elif not outranks(obs, n):
             # A higher robot keeps its course or brakes, and counts on this one to keep clear
