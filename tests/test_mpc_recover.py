@@ -18,12 +18,23 @@ import pytest
 import shapely
 from shapely.geometry import LineString
 
+from fleet.engine import World
 from fleet.floor import BOUNDARY_BAND, Floor, load_floor
 from fleet.paths import PathPlanner
-from fleet.plugins import ControllerContext, ControlStatus, Neighbour, Observation, RobotSpec
+from fleet.plugins import (
+    ControllerContext,
+    ControlStatus,
+    Neighbour,
+    Observation,
+    RobotSpec,
+    SolveReport,
+    SolverOutcome,
+)
+from fleet.scenario import REPO_ROOT, load_scenario
 from fleet_plugins.mpc.controller import MPCController
-from fleet_plugins.mpc.fallback import free_brake
-from fleet_plugins.mpc.neighbours import clear_of_neighbours
+from fleet_plugins.mpc.fallback import brake, free_brake
+from fleet_plugins.mpc.neighbours import clear_of_neighbours, closest_approach
+from fleet_plugins.mpc.recover import fall_back
 
 SPEC = RobotSpec(v_max=1.42, a_max=0.34, radius=0.423, period=0.25)
 #: The case's map file, whole (the controller's regions and reference depend on all of it).
@@ -208,3 +219,36 @@ def test_a_failed_solve_next_to_a_wall_keeps_the_plan_rather_than_brake_into_the
     assert path[0] == (obs.x, obs.y)
     assert in_free_space(floor, path)
     assert path[1:] == shown[2:] + shown[-1:] * (len(path) - len(shown) + 1)  # the plan, on
+
+
+def test_a_fallback_brake_keeps_clear_of_a_robot_at_rest_where_a_brake_can() -> None:
+    # 80 MPC robots on the fleet scenario (bench_fleet.py --sweep 80 --duration 600
+    # --release-until 120 --seed 2, on a commit since reverted), t = 175.5 s: r40's solve is
+    # infeasible next to r34, at rest 0.89 m away. Braking along its line of travel brought it
+    # to 0.7915 m of r34 (radii 0.4): a contact. Braking both axes at the full rate keeps
+    # clear, and a fallback now takes it. The state as the engine made it; the real floor.
+    floor = World(load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")).floor
+    spec = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
+    r34 = Neighbour("r34", 76.40367752684367, 13.356769812649526, 0.0, 0.0, 0.4, 127,
+                    ((175.5, 76.40367752684367, 13.356769812649526),
+                     (181.5, 76.40367752684367, 13.356769812649526)))  # fmt: skip
+    obs = Observation("r40", 702, 175.5, 76.30812428450983, 14.245311899054474,
+                      0.4688994374039339, -0.1985400568319129, goal=(78.0, 48.0),
+                      neighbours=(r34,), priority=41)  # fmt: skip
+    report = SolveReport(SolverOutcome.INFEASIBLE, 0.003, 0.009)
+
+    def gap(plan: tuple[tuple[float, float, float], ...]) -> float:
+        p = np.array([q[1:] for q in plan])
+        return closest_approach(p, np.tile([r34.x, r34.y], (len(p), 1)))
+
+    straight = brake(obs, spec, 25, ControlStatus.FALLBACK, floor)
+    assert gap(straight.plan) < 0.8  # the brake it took: into r34
+    cmd, kept = fall_back(obs, spec, 25, floor, None, False, True, report)
+    assert cmd.status is ControlStatus.FALLBACK and cmd.solve is report and kept is None
+    assert gap(cmd.plan) >= 0.8
+    # It is a brake: each axis slows, none speeds up or turns round.
+    vx, vy = obs.vx + spec.period * cmd.ax, obs.vy + spec.period * cmd.ay
+    assert 0.0 <= vx < obs.vx and obs.vy < vy <= 0.0
+    # Without robots to avoid (`avoid_robots` off) the fallback brakes as before.
+    cmd, _ = fall_back(obs, spec, 25, floor, None, False, False, report)
+    assert cmd.plan == straight.plan

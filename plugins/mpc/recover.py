@@ -4,8 +4,10 @@ where braking would leave the floor).
 
 The previous plan one step on, if the robot is on it and (with other robots about and
 ``avoid_robots``) that keeps clear of every neighbour's predicted position, between the steps
-too, or no braking path stays in the free space; else braking (`fallback.brake`). Either way
-the controller then plans a new trip. It lives apart from `fallback`, whose braking paths
+too, or no braking path stays in the free space; else braking (`fallback.brake`), by the
+first of its brakes that keeps clear of the neighbours' predicted positions where one does
+(straight on, a robot at rest stood in the way: `fallback.free_brake`). Either way the
+controller then plans a new trip. It lives apart from `fallback`, whose braking paths
 `neighbours` builds on, because it asks `neighbours` whether the shifted plan keeps clear.
 
 The previous plan was solved in the floor's regions, so it stays in the free space to rest;
@@ -19,6 +21,8 @@ others saw.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -54,8 +58,17 @@ def fall_back(
     if on_plan:
         assert last is not None
         return follow_previous(obs, last, spec.period, report)
-    cmd = brake(obs, spec, horizon, ControlStatus.FALLBACK, floor)
+    clear = _clear_of(obs, spec) if avoid_robots else None
+    cmd = brake(obs, spec, horizon, ControlStatus.FALLBACK, floor, clear)
     return Command(cmd.ax, cmd.ay, cmd.status, cmd.plan, report), None
+
+
+def _clear_of(obs: Observation, spec: RobotSpec) -> Callable[[np.ndarray], bool] | None:
+    """Whether a braking path keeps clear of the neighbours' predicted positions
+    (`neighbours.clear_of_neighbours`), for `fallback.free_brake`; None with none about."""
+    if not obs.neighbours:
+        return None
+    return lambda path: clear_of_neighbours(obs, spec, path)
 
 
 def stop(
