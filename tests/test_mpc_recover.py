@@ -1,5 +1,6 @@
 """When a solve fails (plugins/mpc/recover.py): the previous plan stays in the free space, a
-braking path need not, and a neighbour's prediction does not make the robot leave it.
+braking path need not, and a neighbour's prediction does not make the robot leave it; a brake
+keeps clear of a robot at rest where one of the brakes can (the last test, its own state).
 
 Fuzz floor s91-0042 (2 MPC robots, with the settling rule of `neighbours`): r01 had just passed
 station st1 and drove south along the slanted west face of obstacle m00_irregular, its plan
