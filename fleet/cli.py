@@ -166,6 +166,7 @@ def _parser() -> argparse.ArgumentParser:
         help="worker processes hosting the robots' agents (0: all in this process); they talk "
         "to the engine over the scenario's [bus] address, or a private ipc:// socket",
     )
+    _threads_argument(run, "each agent host (this process's, each worker's)")
     _json_argument(run, "the run's summary.json object and its run directory")
 
     serve = command(
@@ -219,6 +220,7 @@ def _parser() -> argparse.ArgumentParser:
         default=300.0,
         help="give up after this many seconds without a word from the engine (default 300)",
     )
+    _threads_argument(agent, "this agent")
 
     keys = command(
         "keys",
@@ -432,10 +434,23 @@ def _options(settings: list[tuple[str, Any]], prefix: str) -> dict[str, Any]:
     return {k.removeprefix(prefix): v for k, v in settings if k.startswith(prefix)}
 
 
+def _threads_argument(cmd: argparse.ArgumentParser, who: str) -> None:
+    cmd.add_argument(
+        "--threads",
+        type=_positive_int,
+        help=f"robots' steps {who} computes at once, in threads (default: the scenario's "
+        "[bus] threads, 1); the MPC's solves overlap on that many cores, the results unchanged",
+    )
+
+
 def _cmd_run(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from dataclasses import replace
+
     from fleet.engine import World
 
     scenario = _scenario(args)
+    if args.threads is not None:
+        scenario = replace(scenario, bus=replace(scenario.bus, threads=args.threads))
     return _simulate(args, console, errors, scenario, lambda: World(scenario, workers=args.workers))
 
 
@@ -476,7 +491,13 @@ def _cmd_agent(args: argparse.Namespace, console: Console, errors: Console) -> i
         curve = ClientCurve(args.key, args.server_key)
     console.print(f"hosting {len(robots)} robots for {args.connect}")
     report = serve_agent(
-        scenario, args.connect, robots, name=args.name, curve=curve, idle_timeout_s=args.wait
+        scenario,
+        args.connect,
+        robots,
+        name=args.name,
+        curve=curve,
+        idle_timeout_s=args.wait,
+        threads=args.threads,
     )
     if report.accepted is None:
         _error(

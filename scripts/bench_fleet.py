@@ -6,7 +6,10 @@ processes, and robot-steps per second of a large follower fleet.
    factor (simulated seconds per wall second), the speed-up of 2 workers over 1, solver
    medians, and whether the digests agree (they must: same seed, same run). ``--lockstep
    strict pipelined`` runs each worker count in each lockstep mode (``[bus] lockstep``; the
-   digests agree within a mode, not across modes).
+   digests agree within a mode, not across modes). ``--threads 1 2`` runs each with each count
+   of threads per agent host (``[bus] threads``: the MPC's solves overlap) and prints each
+   count's speed-up over 1 thread at the same worker count, and the fastest run's over 1
+   worker and 1 thread (the digests agree across threads too).
 2. ``--baseline-robots`` (1000) follower robots with the greedy dispatcher,
    ``--baseline-seconds`` (60) simulated: robot-steps per wall second, in this process and with
    2 workers.
@@ -36,7 +39,7 @@ processes, and robot-steps per second of a large follower fleet.
 Nothing is asserted: the figures go in notes and the README.
 
     python scripts/bench_fleet.py [--minutes 30] [--robots 20] [--workers 0 1 2]
-        [--lockstep strict pipelined] [--rate 4800] [--skip-baseline]
+        [--lockstep strict pipelined] [--threads 1 2] [--rate 4800] [--skip-baseline]
     python scripts/bench_fleet.py --balance [--minutes 10] [--rate 1200] [--robots 40]
         [--lockstep pipelined] [--seed 2]
     python scripts/bench_fleet.py --sweep 10 20 40 80 [--duration 120] [--per-robot-rate 120]
@@ -61,9 +64,9 @@ from fleet.engine.agents import split_robots
 from fleet.scenario import REPO_ROOT, PluginChoice, load_scenario
 
 
-def with_lockstep(scenario, mode: str):
-    """`scenario` with ``[bus] lockstep = mode``."""
-    return replace(scenario, bus=replace(scenario.bus, lockstep=mode))
+def with_lockstep(scenario, mode: str, threads: int = 1):
+    """`scenario` with ``[bus] lockstep = mode`` and ``[bus] threads = threads``."""
+    return replace(scenario, bus=replace(scenario.bus, lockstep=mode, threads=threads))
 
 
 def run(scenario, workers: int) -> tuple[dict, float]:
@@ -388,6 +391,13 @@ def main() -> None:
         choices=["strict", "pipelined"],
         help="MPC fleet: the [bus] lockstep modes to run",
     )
+    ap.add_argument(
+        "--threads",
+        type=_positive_int,
+        nargs="+",
+        default=[1],
+        help="MPC fleet: threads per agent host ([bus] threads) to run with",
+    )
     ap.add_argument("--balance", action="store_true", help="only the work-balance analysis")
     ap.add_argument("--rate", type=_positive_float, help="jobs per hour (default: the scenario's)")
     ap.add_argument(
@@ -441,34 +451,56 @@ def main() -> None:
             f"sensing {sc.sensing_radius_m:g} m"
         )
         print(
-            f"{'lockstep':>9} {'workers':>7} {'setup s':>8} {'run s':>8} {'RTF':>6} "
-            f"{'solve med ms':>12} {'jobs done':>9} {'collisions':>10} digest"
+            f"{'lockstep':>9} {'workers':>7} {'threads':>7} {'setup s':>8} {'run s':>8} "
+            f"{'RTF':>6} {'solve med ms':>12} {'jobs done':>9} {'collisions':>10} digest"
         )
         for mode in args.lockstep:
-            walls: dict[int, float] = {}
+            walls: dict[tuple[int, int], float] = {}
             digests = set()
-            for w in args.workers:
-                s, setup = run(with_lockstep(sc, mode), w)
-                wall = s["wall_time_s"]
-                walls[w] = wall
-                digests.add(s["digest"])
+            for t in args.threads:
+                for w in args.workers:
+                    s, setup = run(with_lockstep(sc, mode, t), w)
+                    wall = s["wall_time_s"]
+                    walls[w, t] = wall
+                    digests.add(s["digest"])
+                    print(
+                        f"{mode:>9} {w:>7} {t:>7} {setup:>8.1f} {wall:>8.1f} "
+                        f"{s['sim_time_s'] / wall:>6.2f} {s['solver']['median_ms'] or 0:>12.2f} "
+                        f"{s['jobs']['completed']:>9} {s['violations']['collision']:>10} "
+                        f"{s['digest'][:12]}"
+                    )
+                    # What could tie a run to the wall clock: solves cut by their time limit
+                    # (not "optimal"), rounds that timed out, agents lost.
+                    print(
+                        f"{'':>25} solver {s['solver']['termination']}, fallbacks "
+                        f"{s['solver']['fallbacks']}, bus timeouts "
+                        f"{s['engine'].get('bus_timeouts', 0)}, faults {s['faults']}",
+                        flush=True,
+                    )
+            for t in args.threads:
+                if (1, t) in walls and (2, t) in walls:
+                    print(
+                        f"{mode}, {t} thread(s): speed-up 2 workers vs 1: "
+                        f"{walls[1, t] / walls[2, t]:.2f}"
+                    )
+                if (0, t) in walls and (2, t) in walls:
+                    print(
+                        f"{mode}, {t} thread(s): speed-up 2 workers vs 0: "
+                        f"{walls[0, t] / walls[2, t]:.2f}"
+                    )
+                if t != 1:
+                    for w in args.workers:
+                        if (w, 1) in walls and (w, t) in walls:
+                            print(
+                                f"{mode}, {w} worker(s): speed-up {t} threads vs 1: "
+                                f"{walls[w, 1] / walls[w, t]:.2f}"
+                            )
+            if (1, 1) in walls and len(walls) > 1:
+                (w, t), fastest = min(walls.items(), key=lambda kv: kv[1])
                 print(
-                    f"{mode:>9} {w:>7} {setup:>8.1f} {wall:>8.1f} {s['sim_time_s'] / wall:>6.2f} "
-                    f"{s['solver']['median_ms'] or 0:>12.2f} {s['jobs']['completed']:>9} "
-                    f"{s['violations']['collision']:>10} {s['digest'][:12]}"
+                    f"{mode}: fastest, {w} worker(s) x {t} thread(s), vs 1 worker x 1 thread: "
+                    f"{walls[1, 1] / fastest:.2f}"
                 )
-                # What could tie a run to the wall clock: solves cut by their time limit (not
-                # "optimal"), rounds that timed out, agents lost.
-                print(
-                    f"{'':>17} solver {s['solver']['termination']}, fallbacks "
-                    f"{s['solver']['fallbacks']}, bus timeouts "
-                    f"{s['engine'].get('bus_timeouts', 0)}, faults {s['faults']}",
-                    flush=True,
-                )
-            if 1 in walls and 2 in walls:
-                print(f"{mode}: speed-up 2 workers vs 1: {walls[1] / walls[2]:.2f}")
-            if 0 in walls and 2 in walls:
-                print(f"{mode}: speed-up 2 workers vs 0: {walls[0] / walls[2]:.2f}")
             print(f"{mode}: digests agree: {len(digests) == 1}")
     if args.skip_baseline:
         return

@@ -69,6 +69,7 @@ def test_the_best_fixed_split_parts_robots_that_work_in_the_same_rounds() -> Non
         (["--rate", "nan"], "--rate: 'nan': must be a number > 0"),
         (["--workers", "1", "-1"], "--workers: '-1': must be a whole number >= 0"),
         (["--robots", "two"], "--robots: 'two': must be a whole number >= 1"),
+        (["--threads", "1", "0"], "--threads: '0': must be a whole number >= 1"),
     ],
 )
 def test_a_bad_count_or_time_is_refused_by_name_before_anything_runs(

@@ -103,6 +103,9 @@ class AgentHost:
     max_message_bytes:
         Longest message taken in or sent; the exchange's must be the same (both read it from
         the scenario's ``[bus] max_message_bytes``).
+    threads:
+        Robots' steps computed at once, in threads (`fleet.bus.responder`; the scenario's
+        ``[bus] threads``); 1 computes them in turn. The commands are the same either way.
 
     Attributes
     ----------
@@ -134,7 +137,10 @@ class AgentHost:
         scenario: str = "",
         curve: ClientCurve | None = None,
         max_message_bytes: int = MAX_MESSAGE_BYTES,
+        threads: int = 1,
     ) -> None:
+        if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
+            raise ValueError(f"agent host threads = {threads!r}: must be an integer >= 1")
         if heartbeat_s is not None and not (
             isinstance(heartbeat_s, int | float)
             and not isinstance(heartbeat_s, bool)
@@ -181,7 +187,7 @@ class AgentHost:
         self.last_tick = -1
         self.heartbeat_s: float | None = None if heartbeat_s is None else float(heartbeat_s)
         self.scenario = scenario
-        self._responder = Responder(name, self.controllers, self.stats, self.log)
+        self._responder = Responder(name, self.controllers, self.stats, self.log, threads)
         self._link = Link(
             self.context,
             address,
@@ -244,6 +250,7 @@ class AgentHost:
         if not self.finished:
             self._link.send(MessageKind.BYE, max(self.last_tick, 0), {"reason": "agent closing"})
         self.socket.close()
+        self._responder.close()
         self.closed = True
 
     def heartbeat(self) -> None:

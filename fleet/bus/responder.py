@@ -7,6 +7,11 @@ number of seconds >= 0 is dropped. Each robot's first trouble is logged with its
 later ones only at debug level (they are counted in `AgentHost.stats`), so a failing plugin
 cannot flood the log. A controller answering `ControlStatus.BLOCKED` while its robot has a job
 hands that job back, once per robot and job.
+
+With `threads` > 1 the robots' steps and bids run in a pool of threads, each through the plugin
+gate (`fleet.plugins.gate`): plugin Python runs one call at a time, and the parts a plugin runs
+outside the gate (the MPC's HiGHS solves) overlap. The answers are collected in the
+observations' order, so the reply is the one a single thread gives.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 from fleet.bus.schema import command_to_wire
@@ -25,6 +31,7 @@ from fleet.plugins import (
     ControlStatus,
     Handback,
     Observation,
+    in_gate,
 )
 from fleet.plugins.robot import brake_input
 
@@ -62,6 +69,9 @@ class Responder:
         The host's counters (`AGENT_STATS`); calls that failed are counted into them.
     log:
         Where failures are logged.
+    threads:
+        Robots' steps computed at once (see the module); 1 computes them one after the other
+        in the calling thread.
     """
 
     def __init__(
@@ -70,11 +80,14 @@ class Responder:
         controllers: Mapping[str, Controller],
         stats: dict[str, int],
         log: logging.Logger,
+        threads: int = 1,
     ) -> None:
         self.name = name
         self.controllers = controllers
         self.stats = stats
         self.log = log
+        self.threads = threads
+        self._pool: ThreadPoolExecutor | None = None
         self._failed: set[str] = set()
         self._bid_failed: set[str] = set()
         self._handed_back: dict[str, str] = {}  # robot -> the job it last handed back
@@ -95,6 +108,7 @@ class Responder:
         commands: dict[str, dict] = {}
         bids: list[Bid] = []
         handbacks: list[Handback] = []
+        ahead = self._in_threads(observations, announcements, accepted)
         for obs in observations:
             robot = obs.robot
             if robot not in accepted or robot in commands:
@@ -107,7 +121,10 @@ class Responder:
                     "appears twice" if robot in commands else "this host does not serve",
                 )
                 continue
-            wire, status = self._compute(robot, obs)
+            done = ahead.get(robot)
+            (wire, status), answers = (
+                done.result() if done is not None else self._step(robot, obs, announcements)
+            )
             commands[robot] = wire
             job = obs.job
             last = self._handed_back.get(robot)
@@ -117,12 +134,41 @@ class Responder:
             if status is ControlStatus.BLOCKED and job is not None and last is None:
                 handbacks.append(Handback(robot, job, "blocked"))
                 self._handed_back[robot] = job
-            for announcement in announcements:
-                bid = self._bid(robot, obs, announcement)
-                if bid is not None:
-                    bids.append(bid)
+            bids.extend(bid for bid in answers if bid is not None)
             between_robots()
         return commands, bids, handbacks
+
+    def close(self) -> None:
+        """Let the pool's threads go (a later `answer` starts a new pool). Idempotent."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def _in_threads(
+        self,
+        observations: Sequence[Observation],
+        announcements: Sequence[Announcement],
+        accepted: frozenset[str],
+    ) -> dict[str, Future]:
+        """With threads, each accepted robot's step and bids started in the pool (its first
+        observation only); without, nothing: `answer` computes them in turn."""
+        if self.threads <= 1:
+            return {}
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix=f"{self.name}-step")
+        out: dict[str, Future] = {}
+        for obs in observations:
+            if obs.robot in accepted and obs.robot not in out:
+                out[obs.robot] = self._pool.submit(
+                    in_gate, self._step, obs.robot, obs, announcements
+                )
+        return out
+
+    def _step(
+        self, robot: str, obs: Observation, announcements: Sequence[Announcement]
+    ) -> tuple[tuple[dict, ControlStatus], list[Bid | None]]:
+        """The robot's command (wire form and status) and its answer to each announcement."""
+        return self._compute(robot, obs), [self._bid(robot, obs, a) for a in announcements]
 
     def _compute(self, robot: str, obs: Observation) -> tuple[dict, ControlStatus]:
         """The command's wire form and status; braking (ERROR) if the controller failed."""

@@ -243,6 +243,7 @@ class World:
                     name="local",
                     scenario=fingerprint,
                     max_message_bytes=bus.max_message_bytes,
+                    threads=bus.threads,
                 )
                 self.exchange.add_local(self.host)
             self._wait_for_agents(agent_wait_s)

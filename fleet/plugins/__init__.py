@@ -3,8 +3,9 @@
 `contracts` (observations, commands, jobs, bids and the `Controller` and `Dispatcher` bases),
 `robot` (the double integrator every controller plans for), `bidding` (a robot's default bid),
 `charging` (the charging-policy contract: `ChargingPolicy`, `BatteryStatus`, `Charger`),
-`discovery` (entry points). The conformance kit, `fleet.plugins.testing`, is a room of its own
-above the bus: import it by name. This room imports only `fleet.errors`, and `fleet.paths` and
+`discovery` (entry points), `gate` (controller steps in threads: `in_gate`,
+`gate_released`). The conformance kit, `fleet.plugins.testing`, is a room of its own above the
+bus: import it by name. This room imports only `fleet.errors`, and `fleet.paths` and
 `fleet.floor` for type names.
 """
 
@@ -39,6 +40,7 @@ from fleet.plugins.discovery import (
     load_controller,
     load_dispatcher,
 )
+from fleet.plugins.gate import gate_released, in_gate
 
 __all__ = [
     "CONTROLLER_GROUP",
@@ -71,4 +73,6 @@ __all__ = [
     "BatteryStatus",
     "Charger",
     "ChargingPolicy",
+    "in_gate",
+    "gate_released",
 ]

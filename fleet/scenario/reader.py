@@ -147,6 +147,8 @@ class BusConfig:
     #: "pipelined": they answer the next tick's (predicted) observation and take effect then,
     #: the engine stepping the world meanwhile (`fleet.engine.pipeline`).
     lockstep: str = "strict"
+    #: Robots' steps each agent host computes at once, in threads (`fleet.bus.responder`).
+    threads: int = 1
 
 
 @dataclass(frozen=True)
@@ -510,7 +512,9 @@ def parse_scenario(raw: dict[str, Any], path: str | Path, *, source: str | None 
         dispatcher=PluginChoice(file.dispatcher.name, file.dispatcher.options),
         jobs=jobs,
         bus_address=bus.address,
-        bus=BusConfig(bus.timeout_s, bus.lost_after_s, bus.max_message_bytes, bus.lockstep),
+        bus=BusConfig(
+            bus.timeout_s, bus.lost_after_s, bus.max_message_bytes, bus.lockstep, bus.threads
+        ),
         deadlock_after_s=sc.deadlock_after_s or None,
         station_queue=sc.station_queue,
         arrival_tolerance_m=sc.arrival_tolerance_m,

@@ -321,6 +321,16 @@ class BusTable(_Table, kw_only=True):
             " then; the engine steps the world while the agents compute). Not with a latency."
         ),
     ] = "strict"
+    threads: Annotated[
+        int,
+        Meta(
+            ge=1,
+            le=256,
+            description="Robots' steps each agent host (the engine's own, each worker, each"
+            " `fleet agent`) computes at once, in threads: their solves overlap on as many"
+            " cores. The commands, and the run's digest, are the same with any count.",
+        ),
+    ] = 1
 
 
 class BreakdownGroupTable(_Table, kw_only=True):

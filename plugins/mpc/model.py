@@ -46,7 +46,7 @@ import pyomo.environ as pyo
 from pyomo.contrib.solver.solvers.highs import Highs as PersistentHighs
 
 from fleet.highs import SolverError, configure, new_highs, solve, solver_log
-from fleet.plugins import SolverOutcome
+from fleet.plugins import SolverOutcome, gate_released
 from fleet_plugins.mpc.bounded import Layout, StepMILP, TripFaces, build_step
 from fleet_plugins.mpc.separation import SLACK_COST, Separation
 from fleet_plugins.mpc.trip import MIDPOINT_MARGIN, Trip
@@ -432,13 +432,16 @@ class TripModel:
 
 
 def run_outcome(h: highspy.Highs, what: str) -> SolverOutcome:
-    """Run `h` and map how it ended to a `SolverOutcome`.
+    """Run `h`, the controller's own object, and map how it ended to a `SolverOutcome`.
 
     A failed run is ``ERROR``, logged with HiGHS's own message (`fleet.highs.solve`); every
-    other status that is not optimal is logged at info level by `outcome_of`.
+    other status that is not optimal is logged at info level by `outcome_of`. On an agent host
+    with threads the run lets go of the gate (`fleet.plugins.gate`): `h` is no one else's, and
+    HiGHS keeps a scheduler per calling thread, so other robots' steps go on meanwhile.
     """
     try:
-        result = solve(h, what)
+        with gate_released():
+            result = solve(h, what)
     except SolverError:
         return SolverOutcome.ERROR
     return outcome_of(h, result.status, what)
