@@ -231,9 +231,12 @@ def test_a_bad_thread_count_is_refused_naming_the_file_field_and_value(tmp_path,
     assert str(path) in said and "bus.threads" in said and value.strip('"') in said
 
 
-def test_fleet_run_refuses_a_bad_threads_option_by_name():
+@pytest.mark.parametrize(
+    "command", [["run"], ["agent", "--connect", "tcp://127.0.0.1:5555"]], ids=["run", "agent"]
+)
+def test_fleet_run_and_agent_refuse_a_bad_threads_option_by_name(command):
     done = subprocess.run(
-        [sys.executable, "-m", "fleet", "run", "--threads", "0"],
+        [sys.executable, "-m", "fleet", *command, "--threads", "0"],
         capture_output=True,
         text=True,
         cwd=REPO_ROOT,
