@@ -1,6 +1,7 @@
 """When a solve fails (plugins/mpc/recover.py): the previous plan stays in the free space, a
 braking path need not, and a neighbour's prediction does not make the robot leave it; a brake
-keeps clear of a robot at rest where one of the brakes can (the last test, its own state).
+keeps clear of a robot at rest where one of the brakes can, after a failed solve or with no
+solve at all (the last two tests, their own state).
 
 Fuzz floor s91-0042 (2 MPC robots, with the settling rule of `neighbours`): r01 had just passed
 station st1 and drove south along the slanted west face of obstacle m00_irregular, its plan
@@ -13,6 +14,8 @@ the ticks 67.0, 67.25 and 67.5 s, with r02's published plan, on that case's floo
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -222,34 +225,64 @@ def test_a_failed_solve_next_to_a_wall_keeps_the_plan_rather_than_brake_into_the
     assert path[1:] == shown[2:] + shown[-1:] * (len(path) - len(shown) + 1)  # the plan, on
 
 
-def test_a_fallback_brake_keeps_clear_of_a_robot_at_rest_where_a_brake_can() -> None:
-    # 80 MPC robots on the fleet scenario (bench_fleet.py --sweep 80 --duration 600
-    # --release-until 120 --seed 2, on a commit since reverted), t = 175.5 s: r40's solve is
-    # infeasible next to r34, at rest 0.89 m away. Braking along its line of travel brought it
-    # to 0.7915 m of r34 (radii 0.4): a contact. Braking both axes at the full rate keeps
-    # clear, and a fallback now takes it. The state as the engine made it; the real floor.
-    floor = World(load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")).floor
-    spec = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
-    r34 = Neighbour("r34", 76.40367752684367, 13.356769812649526, 0.0, 0.0, 0.4, 127,
-                    ((175.5, 76.40367752684367, 13.356769812649526),
-                     (181.5, 76.40367752684367, 13.356769812649526)))  # fmt: skip
-    obs = Observation("r40", 702, 175.5, 76.30812428450983, 14.245311899054474,
-                      0.4688994374039339, -0.1985400568319129, goal=(78.0, 48.0),
-                      neighbours=(r34,), priority=41)  # fmt: skip
+#: 80 MPC robots on the fleet scenario (bench_fleet.py --sweep 80 --duration 600
+#: --release-until 120 --seed 2, on a commit since reverted), t = 175.5 s: r40, 0.89 m from r34
+#: at rest. The state as the engine made it.
+R40_SPEC = RobotSpec(v_max=1.0, a_max=0.5, radius=0.4, period=0.25)
+R34 = Neighbour("r34", 76.40367752684367, 13.356769812649526, 0.0, 0.0, 0.4, 127,
+                ((175.5, 76.40367752684367, 13.356769812649526),
+                 (181.5, 76.40367752684367, 13.356769812649526)))  # fmt: skip
+R40 = Observation("r40", 702, 175.5, 76.30812428450983, 14.245311899054474,
+                  0.4688994374039339, -0.1985400568319129, goal=(78.0, 48.0),
+                  neighbours=(R34,), priority=41)  # fmt: skip
+
+
+def gap_to_r34(plan: tuple[tuple[float, float, float], ...]) -> float:
+    p = np.array([q[1:] for q in plan])
+    return closest_approach(p, np.tile([R34.x, R34.y], (len(p), 1)))
+
+
+@pytest.fixture(scope="module")
+def fleet_floor() -> Floor:
+    return World(load_scenario(REPO_ROOT / "scenarios" / "fleet.toml")).floor
+
+
+def test_a_fallback_brake_keeps_clear_of_a_robot_at_rest_where_a_brake_can(
+    fleet_floor: Floor,
+) -> None:
+    # r40's solve is infeasible. Braking along its line of travel brought it to 0.7915 m of r34
+    # (radii 0.4): a contact. Braking both axes at the full rate keeps clear, and a fallback
+    # now takes it. The real floor.
+    obs, spec, floor = R40, R40_SPEC, fleet_floor
     report = SolveReport(SolverOutcome.INFEASIBLE, 0.003, 0.009)
-
-    def gap(plan: tuple[tuple[float, float, float], ...]) -> float:
-        p = np.array([q[1:] for q in plan])
-        return closest_approach(p, np.tile([r34.x, r34.y], (len(p), 1)))
-
     straight = brake(obs, spec, 25, ControlStatus.FALLBACK, floor)
-    assert gap(straight.plan) < 0.8  # the brake it took: into r34
+    assert gap_to_r34(straight.plan) < 0.8  # the brake it took: into r34
     cmd, kept = fall_back(obs, spec, 25, floor, None, False, True, report)
     assert cmd.status is ControlStatus.FALLBACK and cmd.solve is report and kept is None
-    assert gap(cmd.plan) >= 0.8
+    assert gap_to_r34(cmd.plan) >= 0.8
     # It is a brake: each axis slows, none speeds up or turns round.
     vx, vy = obs.vx + spec.period * cmd.ax, obs.vy + spec.period * cmd.ay
     assert 0.0 <= vx < obs.vx and obs.vy < vy <= 0.0
     # Without robots to avoid (`avoid_robots` off) the fallback brakes as before.
     cmd, _ = fall_back(obs, spec, 25, floor, None, False, False, report)
     assert cmd.plan == straight.plan
+
+
+@pytest.mark.parametrize("avoid_robots", [True, False])
+def test_a_robot_stopping_without_a_solve_brakes_clear_of_a_robot_at_rest_too(
+    fleet_floor: Floor, avoid_robots: bool
+) -> None:
+    # The same state with r40's goal withdrawn (its job handed back: IDLE, `recover.stop`).
+    # Its brake ran straight on into r34 as the failed solve's did; now it takes the same
+    # clear brake, unless the controller ignores other robots.
+    c = MPCController(avoid_robots=avoid_robots)
+    c.reset(ControllerContext("r40", R40_SPEC, fleet_floor, PathPlanner(fleet_floor, 1.0, 0.5)))
+    cmd = c.compute(replace(R40, goal=None))
+    assert cmd.status is ControlStatus.IDLE
+    straight = brake(R40, R40_SPEC, c.horizon, ControlStatus.IDLE, fleet_floor)
+    if avoid_robots:
+        assert gap_to_r34(cmd.plan) >= 0.8 > gap_to_r34(straight.plan)
+        vx, vy = R40.vx + R40_SPEC.period * cmd.ax, R40.vy + R40_SPEC.period * cmd.ay
+        assert 0.0 <= vx < R40.vx and R40.vy < vy <= 0.0  # a brake
+    else:
+        assert cmd.plan == straight.plan

@@ -465,7 +465,7 @@ class MPCController(Controller):
 
     def _stop(self, obs: Observation, status: ControlStatus) -> Command:
         """Brake, or follow the previous plan where braking leaves the floor (`recover.stop`)."""
-        ctx, here = self.context, self._on_plan(obs)
-        cmd, self._last = stop(obs, ctx.spec, self.horizon, ctx.floor, self._last, here, status)
+        ctx, here, avoid, last = self.context, self._on_plan(obs), self.avoid_robots, self._last
+        cmd, self._last = stop(obs, ctx.spec, self.horizon, ctx.floor, last, here, status, avoid)
         self._last_t = obs.t if self._last is not None else self._last_t
         return cmd

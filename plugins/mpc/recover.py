@@ -79,16 +79,19 @@ def stop(
     last: Solution | None,
     on_plan: bool,
     status: ControlStatus,
+    avoid_robots: bool = False,
 ) -> tuple[Command, Solution | None]:
     """The command with `status` for a robot that is to stop with no solve (no goal, or no
-    path to it), and the plan to keep as the last one: braking (`fallback.brake`, None kept),
-    unless braking leaves the `floor` (`fallback.leaves_floor`) while the robot is `on_plan`:
-    then `last` one step on, which ends at rest in the regions and zone limits it was solved
-    in. A robot whose job was handed back while its plan turned along an obstacle's face
-    braked straight on into the obstacle's clearance and stood there (the state of fuzz
-    s91-0042 with no goal; tests/test_mpc_stop.py); so did one given a goal it had no path to.
+    path to it), and the plan to keep as the last one: braking (`fallback.brake`, None kept;
+    with `avoid_robots`, a brake clear of the neighbours first, as a failed solve's), unless
+    braking leaves the `floor` (`fallback.leaves_floor`) while the robot is `on_plan`: then
+    `last` one step on, which ends at rest in the regions and zone limits it was solved in. A
+    robot whose job was handed back while its plan turned along an obstacle's face braked
+    straight on into the obstacle's clearance and stood there (the state of fuzz s91-0042 with
+    no goal; tests/test_mpc_stop.py); so did one given a goal it had no path to.
     """
     if on_plan and leaves_floor(obs, spec, floor):
         assert last is not None
         return follow_previous(obs, last, spec.period, None, status)
-    return brake(obs, spec, horizon, status, floor), None
+    clear = _clear_of(obs, spec) if avoid_robots else None
+    return brake(obs, spec, horizon, status, floor, clear), None
