@@ -138,6 +138,23 @@ def test_scripted_jobs_arrive_in_order(scenario_file):
     assert delivered == {"j00001": "east", "j00002": "north"}
 
 
+def test_scripted_jobs_at_one_time_after_an_earlier_one_are_released_without_a_crash(
+    scenario_file,
+):
+    # Fuzz s73-0109 (MPC): jobs at 1.4, 6.2 and 6.2 s. The clock reached 1.4 + (6.2 - 1.4) =
+    # 6.200000000000001 s, so the third job's wait was -8.9e-16 s: SimPy's "Negative delay"
+    # ended the run at its start.
+    sc = load_scenario(scenario_file)
+    times = (1.4, 6.2, 6.2, 6.5)
+    jobs = tuple(ScriptedJob(t, "east" if i % 2 else "north") for i, t in enumerate(times))
+    world = World(replace(sc, jobs=JobsConfig(mode="scripted", scripted=jobs)))
+    world.run()
+    released = [(e.t, e.job) for e in world.recorder.events if e.event == "released"]
+    assert released == [(t, f"j{i:05d}") for i, t in enumerate(times, start=1)]
+    delivered = [e.job for e in world.recorder.events if e.event == "delivered"]
+    assert sorted(delivered) == [f"j{i:05d}" for i in range(1, 5)]
+
+
 def test_robot_steps_follow_each_period(scenario_file):
     sc = load_scenario(scenario_file)
     world = World(replace(sc, duration_s=10.0))

@@ -101,7 +101,9 @@ class JobLifecycle:
         for t, job in self.job_source:
             if t > self.scenario.duration_s:
                 return
-            yield self.env.timeout(t - self.env.now)
+            # Not below 0: the clock is a sum of waits, so a job at the time of the one before
+            # may be due a rounding error in the past (fuzz s73-0109: -8.9e-16 s, a crash).
+            yield self.env.timeout(max(t - self.env.now, 0.0))
             tasks = self.job_source.print_tasks.pop(job.id, ())
             if job.part is not None:
                 tasks = self.part_tasks[job.part]
