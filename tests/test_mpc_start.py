@@ -13,6 +13,7 @@ tests/contact_cases/both_start_from_rest (the fuzz case as found, 90 s, two robo
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -127,3 +128,24 @@ def test_a_higher_robot_keeps_clear_of_a_lower_one_that_shows_its_start() -> Non
                       priority=4)  # fmt: skip
     assert not close(obs, moving, spec, half)
     assert robots_to_avoid(obs, spec, n, -box, box, margin=0.1, respect_priority=True) == []
+
+
+def test_a_higher_robot_is_not_held_by_a_lower_one_at_rest_whose_plan_sets_off_later() -> None:
+    # MPC fuzz case s73-0052 (8 robots, period 0.2 s), t = 98.0 s: r08 (priority 9), at rest,
+    # planned round r02 (priority 15) from 2 s on at every solve; r02, at rest 0.80 m away (radii
+    # 0.332, margin 0.1: close) and sent aside for r08, was held by that plan and stood still,
+    # and r08 waited for it: both still, with jobs, for the last 90 s. r08 will solve again and
+    # show its start a tick early before it moves, so r02 re-plans (keeping clear of r08's plan).
+    spec = RobotSpec(v_max=1.23, a_max=1.94, radius=0.332, period=0.2)
+    t, here, there = 98.0, (22.68, -37.209), (21.916, -37.45)
+    later = ((t, *there), (t + 0.4, *there), (t + 1.6, *there), (t + 2.2, 21.782, -37.422),
+             (t + 2.8, 21.465, -37.357), (t + 3.4, 21.148, -37.291))  # fmt: skip
+    r08 = Neighbour("r08", *there, 0.0, 0.0, 0.332, 9, later)
+    obs = Observation("r02", 490, t, *here, 0.0, 0.0, goal=(22.98, -36.08), job="j00007",
+                      neighbours=(r08,), priority=15)  # fmt: skip
+    assert close(obs, r08, spec, 2 * 0.332 + 0.1)
+    assert not must_hold(obs, spec, 25, 0.1)
+    # Setting off within two ticks (its start shown), it holds r02, as before.
+    now = ((t, *there), (t + 0.4, there[0] - 0.05, there[1]), (t + 3.4, 21.148, -37.291))
+    setting_off = replace(obs, neighbours=(replace(r08, plan=now),))
+    assert must_hold(setting_off, spec, 25, 0.1)

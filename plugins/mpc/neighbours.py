@@ -229,13 +229,26 @@ def _length(paths: np.ndarray) -> float:
     return float(np.max(np.sum(np.hypot(steps[..., 0], steps[..., 1]), axis=1)))
 
 
+#: Steps ahead in which a lower robot's plan that moves makes it rely on this one now: the
+#: window a start from rest is shown in (`fleet_plugins.mpc.start`: steps 1 and 2).
+SET_OFF_STEPS = 2
+
+
 def must_hold(obs: Observation, spec: RobotSpec, horizon: int, margin: float) -> bool:
     """Whether a moving robot that this one outranks is `close` (their centres could come
     within ``r_i + r_j + margin``). Such a robot relies on this one's published plan or
     braking path: this one then only follows its plan (while `reuse.reusable_among`) or brakes,
-    it does not re-plan."""
+    it does not re-plan.
+
+    Moving: within the next two ticks (`SET_OFF_STEPS`). A robot at rest whose plan sets off
+    later does not yet rely on this one: before it moves it solves again, and shows a start
+    from rest a tick late (`fleet_plugins.mpc.start`), which holds this one then. Held for the
+    whole horizon instead, this one stood on the other's way, which waited for it to leave
+    (fuzz s73-0052: r08 planned round r02 from 2 s on at every solve; r02, sent aside for it,
+    stood still for the last 90 s, both with jobs)."""
+    window = min(horizon, SET_OFF_STEPS)
     for n in obs.neighbours:
-        if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, horizon)):
+        if not outranks(obs, n) or at_rest(predict(n, obs.t, spec.period, window)):
             continue
         if close(obs, n, spec, spec.radius + float(n.radius) + margin):
             return True
