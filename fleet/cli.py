@@ -426,6 +426,7 @@ def _scenario(args: argparse.Namespace):
         seed=getattr(args, "seed", None),
         latency=getattr(args, "latency", None),
         controller_options=_options(args.settings, "controller.options."),
+        threads=getattr(args, "steps_at_once", None),
     )
 
 
@@ -437,6 +438,8 @@ def _options(settings: list[tuple[str, Any]], prefix: str) -> dict[str, Any]:
 def _threads_argument(cmd: argparse.ArgumentParser, who: str) -> None:
     cmd.add_argument(
         "--threads",
+        dest="steps_at_once",
+        metavar="N",
         type=_positive_int,
         help=f"robots' steps {who} computes at once, in threads (default: the scenario's "
         "[bus] threads, 1); the MPC's solves overlap on that many cores, the results unchanged",
@@ -444,13 +447,9 @@ def _threads_argument(cmd: argparse.ArgumentParser, who: str) -> None:
 
 
 def _cmd_run(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from dataclasses import replace
-
     from fleet.engine import World
 
     scenario = _scenario(args)
-    if args.threads is not None:
-        scenario = replace(scenario, bus=replace(scenario.bus, threads=args.threads))
     return _simulate(args, console, errors, scenario, lambda: World(scenario, workers=args.workers))
 
 
@@ -491,13 +490,7 @@ def _cmd_agent(args: argparse.Namespace, console: Console, errors: Console) -> i
         curve = ClientCurve(args.key, args.server_key)
     console.print(f"hosting {len(robots)} robots for {args.connect}")
     report = serve_agent(
-        scenario,
-        args.connect,
-        robots,
-        name=args.name,
-        curve=curve,
-        idle_timeout_s=args.wait,
-        threads=args.threads,
+        scenario, args.connect, robots, name=args.name, curve=curve, idle_timeout_s=args.wait
     )
     if report.accepted is None:
         _error(

@@ -193,11 +193,10 @@ def serve_agent(
     name: str | None = None,
     curve: Any = None,
     idle_timeout_s: float | None = None,
-    threads: int | None = None,
 ) -> AgentReport:
     """Host `robots`' controllers and answer the exchange at `address` until it says BYE, or
-    until nothing has come from it for `idle_timeout_s` (None: wait for ever). `threads`: the
-    robots' steps computed at once (None: the scenario's ``[bus] threads``)."""
+    until nothing has come from it for `idle_timeout_s` (None: wait for ever), computing the
+    scenario's ``[bus] threads`` robots' steps at once."""
     floor = load_run_floor(scenario)
     controllers = build_controllers(scenario, floor, robots)
     kwargs: dict[str, Any] = {
@@ -207,8 +206,7 @@ def serve_agent(
     }
     if curve is not None:
         kwargs["curve"] = curve
-    steps_at_once = scenario.bus.threads if threads is None else threads
-    with AgentHost(address, controllers, threads=steps_at_once, **kwargs) as host:
+    with AgentHost(address, controllers, threads=scenario.bus.threads, **kwargs) as host:
         host.serve(idle_timeout_s)
         return AgentReport(
             dict(host.stats),

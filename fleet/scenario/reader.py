@@ -307,11 +307,13 @@ class Scenario:
         seed: int | None = None,
         latency: str | float | None = None,
         controller_options: Mapping[str, Any] | None = None,
+        threads: int | None = None,
     ) -> Scenario:
         """A copy with command-line overrides applied and validated.
 
         `latency` takes what ``--latency`` takes: ``"none"``, ``"measured"`` or seconds >= 0
-        (a number or its text); None leaves the scenario's setting.
+        (a number or its text); None leaves the scenario's setting. `threads` sets ``[bus]
+        threads`` (``--threads``).
 
         A `controller` that is the scenario's own keeps its options; another one gets only
         `controller_options` (those given with it, ``--set controller.options.*``): the file's
@@ -346,6 +348,10 @@ class Scenario:
         if latency is not None:
             out = replace(out, latency=parse_latency(src, "--latency", latency, parse_text=True))
             check_lockstep(out, "--latency")
+        if threads is not None:
+            out = replace(
+                out, bus=replace(out.bus, threads=convert(threads, PositiveInt, src, "--threads"))
+            )
         return out
 
 
