@@ -329,8 +329,8 @@ class MPCController(Controller):
         self._last, self._last_t = shifted(self._last), obs.t
         # Keep the progress along the reference current, as a solve's step data does (its
         # search looks only `PROGRESS_WINDOW` samples ahead of the last one).
-        here = np.array([[obs.x, obs.y]])
-        self._progress = int(self._trip.progress(here, self._progress, PROGRESS_WINDOW)[0])
+        here = np.array([obs.x, obs.y])
+        self._progress = self._trip.progress_in_sight(here, self._progress, PROGRESS_WINDOW)[0]
         self._reused += 1
         self.reuses += 1
         last = self._last

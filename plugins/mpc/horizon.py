@@ -97,10 +97,14 @@ def step_data(
     v_lo[0] = v_hi[0] = v0
 
     # Where along the reference: on time, the timed sample; behind, just past the progress.
-    progress = int(trip.progress(p0[None, :], progress, PROGRESS_WINDOW)[0])
+    # Out of sight of the chords ahead, the window waits at the progress until the robot is
+    # back: run ahead, it pulls the robot towards where the route goes as the crow flies,
+    # maybe across a wall (fuzz s73-0631: at rest for good right across one from its goal).
+    progress, in_sight = trip.progress_in_sight(p0, progress, PROGRESS_WINDOW)
     timed = ref.index(obs.t)
-    base = min(max(timed, progress), progress + 1)
-    p_ref, v_ref, at = reference_window(ref, base, np.minimum(spec.v_max, caps), dt)
+    base = min(max(timed, progress), progress + 1) if in_sight else progress
+    pace = np.minimum(spec.v_max, caps) if in_sight else np.zeros_like(caps)
+    p_ref, v_ref, at = reference_window(ref, base, pace, dt)
     # The chord each step's reference starts on, and the last chord it reaches: step k
     # runs along the reference from at[k] to at[k+1].
     chord = np.minimum(np.floor(at).astype(int), last_index)

@@ -127,6 +127,26 @@ class Trip:
         last = (hi - lo - 1) - np.argmax((d <= best + 1e-9)[:, ::-1], axis=1)
         return lo + last
 
+    def progress_in_sight(self, point: np.ndarray, lo: int, width: int) -> tuple[int, bool]:
+        """`progress` of one point, counting only samples whose chord runs through a region
+        that holds the point (convex: a chord the robot can see); and whether there was one.
+
+        The nearest sample as the crow flies can lie across a thin wall, where the reference
+        comes back on the other side: the robot then tracks that stretch on the wrong side of
+        the wall and comes to rest against it for good (fuzz s73-0631). With no such sample
+        in the window (the robot went out of sight of the chords ahead, round a neighbour or
+        backing off, or stands off the trip's regions), the progress stays at `lo`.
+        """
+        pos = self.reference.positions
+        hi = min(len(pos), lo + width + 1)
+        lo = max(0, min(lo, hi - 1))
+        here = self.holding(point)
+        seen = np.array([i for i in range(lo, hi) if self.chord_sets[i] & here], dtype=int)
+        if not len(seen):
+            return lo, False
+        d = np.hypot(pos[seen, 0] - point[0], pos[seen, 1] - point[1])
+        return int(seen[d <= d.min() + 1e-9][-1]), True  # ties: the later, as `progress`
+
     def holding(self, point: np.ndarray, tol: float = BOUNDARY_BAND) -> frozenset[int]:
         """Positions in `regions` of the regions that hold `point` (to `tol` m)."""
         return frozenset(
