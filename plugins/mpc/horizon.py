@@ -156,13 +156,15 @@ def rejoin(trip: Trip, p1: np.ndarray, lo: int, hi: int) -> int | None:
     """The chord to open the corridor to when the robot's first planned point `p1` lies in
     none of the regions of chords ``lo .. hi`` (the first step's corridor); else None.
 
-    Progress along the reference is the nearest sample, as the crow flies. A robot that went
-    round a neighbour on the other side of a corner can be nearest to a sample past the corner
-    while it stands in a region the reference left before it: the corridor's regions then do
-    not meet its own (only the previous plan's region holds it), every solve is optimal at rest
-    and the robot stays there for good (fuzz s21-0087: 155 s with its job, a neighbour in
-    sight so `fallback.stays_put` never fired). Opening every step's corridor to the chord
-    nearest the progress that overlaps the robot's region joins the two: consecutive chords
+    Progress along the reference was the nearest sample, as the crow flies. A robot that went
+    round a neighbour on the other side of a corner was nearest to a sample past the corner
+    while it stood in a region the reference left before it: the corridor's regions then did
+    not meet its own (only the previous plan's region held it), every solve was optimal at rest
+    and the robot stayed there for good (fuzz s21-0087: 155 s with its job, a neighbour in
+    sight so `fallback.stays_put` never fired). Progress now counts only chords in sight
+    (`Trip.progress_in_sight`), but a robot out of sight of them all, its progress held, is
+    as far from the corridor. Opening every step's corridor to the chord nearest the progress
+    that overlaps the robot's region joins the two: consecutive chords
     meet at a sample, so chords ``lo .. hi`` with it are one chain of regions that meet.
     """
     here = trip.holding(p1)
