@@ -164,8 +164,8 @@ def rejoin(trip: Trip, p1: np.ndarray, lo: int, hi: int) -> int | None:
     sight so `fallback.stays_put` never fired). Progress now counts only chords in sight
     (`Trip.progress_in_sight`), but a robot out of sight of them all, its progress held, is
     as far from the corridor. Opening every step's corridor to the chord nearest the progress
-    that overlaps the robot's region joins the two: consecutive chords
-    meet at a sample, so chords ``lo .. hi`` with it are one chain of regions that meet.
+    that overlaps the robot's region joins the two: consecutive chords meet at a sample, so
+    chords ``lo .. hi`` with it are one chain of regions that meet.
     """
     here = trip.holding(p1)
     if not here or here & trip.corridor(lo, hi):
