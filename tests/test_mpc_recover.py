@@ -1,7 +1,8 @@
 """When a solve fails (plugins/mpc/recover.py): the previous plan stays in the free space, a
 braking path need not, and a neighbour's prediction does not make the robot leave it; a brake
 keeps clear of a robot at rest where one of the brakes can, after a failed solve or with no
-solve at all (the last two tests, their own state).
+solve at all (two tests with their own state); a plan solved before a print began is followed
+only within the print's caps (the last test, on this floor).
 
 Fuzz floor s91-0042 (2 MPC robots, with the settling rule of `neighbours`): r01 had just passed
 station st1 and drove south along the slanted west face of obstacle m00_irregular, its plan
@@ -286,3 +287,38 @@ def test_a_robot_stopping_without_a_solve_brakes_clear_of_a_robot_at_rest_too(
         assert 0.0 <= vx < R40.vx and R40.vy < vy <= 0.0  # a brake
     else:
         assert cmd.plan == straight.plan
+
+
+ST0 = (8.3911, 18.7292)  # a depot on the s91-0042 floor, east across the open south of it
+
+
+@pytest.mark.parametrize("cap", [0.2, 1.5])
+def test_a_failed_solve_as_a_print_starts_brakes_rather_than_follow_a_plan_over_its_cap(
+    floor: Floor, cap: float
+) -> None:
+    # Fuzz s97-0728: r08, driving off at 0.26 m/s, was given a job at the station it was
+    # leaving; the print's 0.28 m/s cap ran from the next step and its solves were infeasible
+    # (a neighbour). Its fallback followed its plan home, solved before the print existed, to
+    # 1.18 m/s. Here: a real plan from rest, then a failed solve one tick on, on that plan,
+    # with a print whose cap runs from the next step.
+    c = MPCController()
+    c.reset(ControllerContext("r08", SPEC, floor, PathPlanner(floor, v_max=1.42, a_max=0.34)))
+    assert c.compute(Observation("r08", 0, 0.0, -8.0, 16.5, 0.0, 0.0, goal=ST0)).status is (
+        ControlStatus.OK
+    )
+    last, dt = c._last, SPEC.period
+    assert last is not None and last.p is not None and last.v is not None
+    caps = ((2 * dt, 30.0, cap),)
+    obs = Observation("r08", 1, dt, *last.p[1], *last.v[1], goal=ST0, job="j00011", speed_caps=caps)
+    assert np.abs(last.v[1]).max() <= 0.2  # within the cap now; the plan speeds on
+    assert np.abs(last.v[2:]).max() > 0.2
+    report = SolveReport(SolverOutcome.INFEASIBLE, 0.0, 0.0)
+    cmd, kept = fall_back(obs, SPEC, c.horizon, floor, last, True, True, report)
+    assert cmd.status is ControlStatus.FALLBACK and cmd.solve is report
+    vx, vy = obs.vx + dt * cmd.ax, obs.vy + dt * cmd.ay
+    if cap < 1.0:  # the plan breaks the cap: a brake (before: the plan, on to 0.34 m/s)
+        assert kept is None
+        assert abs(vx) <= abs(obs.vx) and abs(vy) <= abs(obs.vy)
+    else:  # within a cap it keeps: the plan, one step on
+        assert kept is not None and np.array_equal(kept.p, np.vstack([last.p[1:], last.p[-1:]]))
+        assert (vx, vy) == pytest.approx(tuple(last.v[2]))

@@ -2,11 +2,12 @@
 with no solve: no goal, or no path to it (`stop`: braking, or the previous plan one step on
 where braking would leave the floor).
 
-The previous plan one step on, if the robot is on it and (with other robots about and
-``avoid_robots``) that keeps clear of every neighbour's predicted position, between the steps
-too, or no braking path stays in the free space; else braking (`fallback.brake`), by the
-first of its brakes that keeps clear of the neighbours' predicted positions where one does
-(straight on, a robot at rest stood in the way: `fallback.free_brake`). Either way the
+The previous plan one step on, if the robot is on it, it keeps within this tick's print caps
+and (with other robots about and ``avoid_robots``) clear of every neighbour's predicted
+position, between the steps too, or no braking path stays in the free space; else braking
+(`fallback.brake`), by the first of its brakes that keeps clear of the neighbours' predicted
+positions where one does (straight on, a robot at rest stood in the way:
+`fallback.free_brake`). Either way the
 controller then plans a new trip. It lives apart from `fallback`, whose braking paths
 `neighbours` builds on, because it asks `neighbours` whether the shifted plan keeps clear.
 
@@ -18,6 +19,11 @@ path came no farther from that neighbour than the plan (fuzz s91-0042: a higher 
 for the station the robot had just left planned across its path; tests/test_mpc_recover.py).
 A neighbour is a prediction, the obstacle is not: the plan is kept, and it is the plan the
 others saw.
+
+A plan solved before a print began knows nothing of its caps; a brake slows every axis and
+keeps any cap the robot keeps now. A robot given a job at a station while driving off at
+0.26 m/s, its solves infeasible for a neighbour, followed its plan home to 1.18 m/s against the
+print's 0.28 m/s cap, 8 steps over (fuzz s97-0728; tests/test_mpc_recover.py).
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveR
 from fleet_plugins.mpc.fallback import brake, follow_previous, free_brake, leaves_floor
 from fleet_plugins.mpc.model import Solution
 from fleet_plugins.mpc.neighbours import clear_of_neighbours
+from fleet_plugins.mpc.reuse import within_caps
 
 __all__ = ["fall_back", "stop"]
 
@@ -47,14 +54,15 @@ def fall_back(
 ) -> tuple[Command, Solution | None]:
     """The FALLBACK command for a failed solve, carrying its `report`, and the plan to keep as
     the last one: `last` one step on when the robot is `on_plan` (it is where `last` said it
-    would be now) and that keeps clear of the others or no brake stays in the free space of
-    the `floor` (`fallback.free_brake`), else None (the robot brakes)."""
-    if on_plan and obs.neighbours and avoid_robots:
-        assert last is not None and last.p is not None
-        shifted_p = np.vstack([last.p[1:], last.p[-1:]])
-        on_plan = clear_of_neighbours(obs, spec, shifted_p) or (
-            floor is not None and free_brake(obs, spec, floor) is None
-        )
+    would be now) and that keeps within this tick's print caps (`reuse.within_caps`) and clear
+    of the others, or when no brake stays in the free space of the `floor`
+    (`fallback.free_brake`); else None (the robot brakes)."""
+    if on_plan:
+        assert last is not None and last.p is not None and last.v is not None
+        keep = within_caps(obs, spec, np.vstack([last.v[1:], np.zeros((1, 2))]))
+        if keep and obs.neighbours and avoid_robots:
+            keep = clear_of_neighbours(obs, spec, np.vstack([last.p[1:], last.p[-1:]]))
+        on_plan = keep or (floor is not None and free_brake(obs, spec, floor) is None)
     if on_plan:
         assert last is not None
         return follow_previous(obs, last, spec.period, report)
