@@ -31,7 +31,11 @@ processes, and robot-steps per second of a large follower fleet.
    (the safety checker's collision count, and the closest approach of any two robots computed
    here from the recorded trajectories, between samples too), solver fallbacks, deadlock events
    and what became of each (the blocked robot got 0.25 m closer to its goal, reached it, its job
-   was handed back, or none of these by the end), jobs released and delivered, wall time.
+   was handed back, or none of these by the end), jobs released and delivered, wall time; and
+   those fates apart for robots with a job and for robots heading home, with the robots short
+   of home at the end and the time of the last delivery (a robot's home may change on the way:
+   `fleet.engine.homes`, so a robot heading home can end up home with its deadlock's fate
+   "none").
    ``--release-until S`` releases jobs only for the first S simulated seconds
    (``[jobs] release_until_s``): with a longer ``--duration``, whether the fleet works off
    the whole batch (issue 16: every job delivered by the end of a long enough run).
@@ -259,6 +263,23 @@ def closest_approach(world: World) -> tuple[float, str, str, float]:
     return best
 
 
+#: What became of a deadlock event (`deadlock_outcomes`), in the order the sweep prints them.
+FATES = ("reached", "progressed", "handed back", "none")
+
+
+def short_of_home(world: World) -> tuple[int, float | None]:
+    """Robots without a job, meant to return home, farther than the arrival tolerance from
+    their home at the end of the run; and the time of the last delivery (None: none)."""
+    tol = world.scenario.arrival_tolerance_m
+    away = sum(
+        1
+        for r in world.robots.values()
+        if r.return_home and r.job is None and math.hypot(r.x - r.home[0], r.y - r.home[1]) > tol
+    )
+    done = [e.t for e in world.recorder.events if e.event == "delivered"]
+    return away, max(done) if done else None
+
+
 def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, float]]) -> dict:
     """What became of each deadlock event: the blocked robot ``reached`` its goal (within the
     arrival tolerance, or arrived/delivered), ``progressed`` (got 0.25 m closer to it than at
@@ -267,6 +288,9 @@ def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, 
     tol = world.scenario.arrival_tolerance_m
     events = world.recorder.events
     out: dict[str, Any] = {"reached": 0, "progressed": 0, "handed back": 0, "none": 0}
+    # The same, apart: robots with a job at the event, and robots heading home.
+    out["with a job"] = dict.fromkeys(FATES, 0)
+    out["heading home"] = dict.fromkeys(FATES, 0)
     delays = []
     for e in events:
         if e.event != "deadlock":
@@ -292,6 +316,7 @@ def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, 
         elif later:
             kind = "handed back"
         out[kind] += 1
+        out["with a job" if e.job else "heading home"][kind] += 1
         if gap is not None and np.any(gap <= gap[0] - 0.25):
             delays.append(float(t[after][np.argmax(gap <= gap[0] - 0.25)] - e.t))
     out["median_s_to_progress"] = float(np.median(delays)) if delays else None
@@ -346,7 +371,7 @@ def sweep(
         gap, a, b, t = closest_approach(world)
         fate = deadlock_outcomes(world, goals)
         d = world.recorder.stats.get("deadlocks", 0)
-        fates = "/".join(str(fate[k]) for k in ("reached", "progressed", "handed back", "none"))
+        fates = "/".join(str(fate[k]) for k in FATES)
         centres = gap + world.robots[a].spec.radius + world.robots[b].spec.radius
         print(
             f"{n:>6} {s['violations']['collision']:>8} {centres:>9.3f} "
@@ -359,6 +384,16 @@ def sweep(
             f"gap to contact {gap:+.3f} m; solver {s['solver']['termination']}; hand-backs "
             f"{s['jobs']['handed_back']}, failed {s['jobs']['failed']}; median "
             f"{fate['median_s_to_progress']} s from a deadlock to progress",
+        )
+        away, last = short_of_home(world)
+        apart = ", ".join(
+            f"{who} {'/'.join(str(fate[who][k]) for k in FATES)}"
+            for who in ("with a job", "heading home")
+        )
+        print(
+            f"{'':>6} deadlocks (reached/progr/handed/none): {apart}; {away} robots short "
+            f"of home at the end; last delivery at "
+            f"{'-' if last is None else f'{last:.1f} s'}"
         )
         assert world.host is not None
         reuses = sum(getattr(c, "reuses", 0) for c in world.host.controllers.values())

@@ -1,5 +1,6 @@
-"""The fleet sweep (scripts/bench_fleet.py): its own contact check, exact between samples, and
-its command line."""
+"""The fleet sweep (scripts/bench_fleet.py): its own contact check, exact between samples, what
+became of each deadlock (robots with a job and robots heading home apart), and its command
+line."""
 
 import subprocess
 import sys
@@ -8,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fleet.engine.recorder import Trajectory
+from fleet.engine.recorder import Event, Trajectory
 from tests.scripts import REPO_ROOT, load_script
 
 
@@ -47,6 +48,54 @@ def test_robots_that_stay_apart_give_their_least_distance_less_the_radii() -> No
     w = world({"r1": [(0.0, 0.0), (1.0, 0.0)], "r2": [(0.0, 1.5), (1.0, 1.0)]})
     gap, a, b, t = bench.closest_approach(w)
     assert gap == pytest.approx(1.0 - 0.8) and t == pytest.approx(0.25)
+
+
+def test_deadlock_fates_are_told_apart_for_robots_with_a_job_and_robots_heading_home() -> None:
+    bench = load_script("bench_fleet")
+    # r1 (a job) gets to its goal; r2 (heading home) comes 1 m closer to its own; r3 (heading
+    # home) never moves. Each was reported in deadlock at t = 0.25 s.
+    w = world(
+        {
+            "r1": [(0.0, 0.0), (0.0, 0.0), (1.0, 0.0), (2.0, 0.0)],
+            "r2": [(5.0, 0.0), (5.0, 0.0), (6.0, 0.0), (6.0, 0.0)],
+            "r3": [(9.0, 9.0)] * 4,
+        }
+    )
+    w.scenario = SimpleNamespace(arrival_tolerance_m=0.05)
+    w.recorder.events = [
+        Event(0.25, "deadlock", "j1", "r1"),
+        Event(0.25, "deadlock", "", "r2"),
+        Event(0.25, "deadlock", "", "r3"),
+        Event(0.75, "arrived", "j1", "r1", "st1"),
+    ]
+    goals = {(0.25, "r1"): (2.0, 0.0), (0.25, "r2"): (8.0, 0.0), (0.25, "r3"): (0.0, 9.0)}
+    fate = bench.deadlock_outcomes(w, goals)
+    assert [fate[k] for k in bench.FATES] == [1, 1, 0, 1]
+    assert fate["with a job"] == {"reached": 1, "progressed": 0, "handed back": 0, "none": 0}
+    assert fate["heading home"] == {"reached": 0, "progressed": 1, "handed back": 0, "none": 1}
+
+
+def test_robots_short_of_home_are_those_idle_robots_off_their_home() -> None:
+    bench = load_script("bench_fleet")
+
+    def robot(x: float, job: object = None, return_home: bool = True) -> SimpleNamespace:
+        return SimpleNamespace(x=x, y=0.0, home=(0.0, 0.0), job=job, return_home=return_home)
+
+    robots = {
+        "home": robot(0.04),  # within the arrival tolerance
+        "away": robot(1.0),
+        "busy": robot(3.0, job="j1"),  # on a job: not heading home
+        "stays": robot(2.0, return_home=False),
+    }
+    events = [Event(10.0, "delivered", "j0", "busy"), Event(4.0, "delivered", "j2", "away")]
+    w = SimpleNamespace(
+        robots=robots,
+        scenario=SimpleNamespace(arrival_tolerance_m=0.05),
+        recorder=SimpleNamespace(events=events),
+    )
+    assert bench.short_of_home(w) == (1, 10.0)
+    w.recorder.events = []
+    assert bench.short_of_home(w) == (1, None)
 
 
 def test_the_best_fixed_split_parts_robots_that_work_in_the_same_rounds() -> None:
