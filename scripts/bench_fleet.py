@@ -32,10 +32,9 @@ processes, and robot-steps per second of a large follower fleet.
    here from the recorded trajectories, between samples too), solver fallbacks, deadlock events
    and what became of each (the blocked robot got 0.25 m closer to its goal, reached it, its job
    was handed back, or none of these by the end), jobs released and delivered, wall time; and
-   those fates apart for robots with a job and for robots heading home, with the robots short
-   of home at the end and the time of the last delivery (a robot's home may change on the way:
-   `fleet.engine.homes`, so a robot heading home can end up home with its deadlock's fate
-   "none").
+   those fates apart for robots with a job and for robots heading home (reached: home at the
+   end, its home perhaps traded on the way: `fleet.engine.homes`), with the robots short of
+   home at the end and the time of the last delivery.
    ``--release-until S`` releases jobs only for the first S simulated seconds
    (``[jobs] release_until_s``): with a longer ``--duration``, whether the fleet works off
    the whole batch (issue 16: every job delivered by the end of a long enough run).
@@ -282,9 +281,10 @@ def short_of_home(world: World) -> tuple[int, float | None]:
 
 def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, float]]) -> dict:
     """What became of each deadlock event: the blocked robot ``reached`` its goal (within the
-    arrival tolerance, or arrived/delivered), ``progressed`` (got 0.25 m closer to it than at
-    the event), had its job ``handed back``, or ``none`` by the end of the run; and the median
-    time (s) from the event to progress."""
+    arrival tolerance, or arrived/delivered; heading home, it ends the run at its home, which
+    may be another than at the event: `fleet.engine.homes`), ``progressed`` (got 0.25 m closer
+    to it than at the event), had its job ``handed back``, or ``none`` by the end of the run;
+    and the median time (s) from the event to progress."""
     tol = world.scenario.arrival_tolerance_m
     events = world.recorder.events
     out: dict[str, Any] = {"reached": 0, "progressed": 0, "handed back": 0, "none": 0}
@@ -308,6 +308,9 @@ def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, 
             and f.event in ("arrived", "delivered", "handed_back", "failed")
         ]
         arrived = bool(later) and later[0].event in ("arrived", "delivered")
+        if not e.job:  # heading home: home at the end, a traded home too
+            home = world.robots[e.robot].home
+            arrived = math.hypot(xy[-1, 0] - home[0], xy[-1, 1] - home[1]) <= tol
         kind = "none"
         if arrived or (gap is not None and np.any(gap <= tol)):
             kind = "reached"

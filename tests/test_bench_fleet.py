@@ -52,27 +52,37 @@ def test_robots_that_stay_apart_give_their_least_distance_less_the_radii() -> No
 
 def test_deadlock_fates_are_told_apart_for_robots_with_a_job_and_robots_heading_home() -> None:
     bench = load_script("bench_fleet")
-    # r1 (a job) gets to its goal; r2 (heading home) comes 1 m closer to its own; r3 (heading
-    # home) never moves. Each was reported in deadlock at t = 0.25 s.
+    # r1 (a job) gets to its goal; heading home, r2 comes 1 m closer to its home, r3 never
+    # moves, and r4 ends at another home than the one it headed for (traded on the way). Each
+    # was reported in deadlock at t = 0.25 s.
     w = world(
         {
             "r1": [(0.0, 0.0), (0.0, 0.0), (1.0, 0.0), (2.0, 0.0)],
             "r2": [(5.0, 0.0), (5.0, 0.0), (6.0, 0.0), (6.0, 0.0)],
             "r3": [(9.0, 9.0)] * 4,
+            "r4": [(3.0, 3.0), (3.0, 3.0), (3.0, 2.0), (3.0, 2.0)],
         }
     )
+    homes = {"r1": (0.0, 0.0), "r2": (8.0, 0.0), "r3": (0.0, 9.0), "r4": (3.0, 2.0)}
+    w.robots = {r: SimpleNamespace(home=home) for r, home in homes.items()}
     w.scenario = SimpleNamespace(arrival_tolerance_m=0.05)
     w.recorder.events = [
         Event(0.25, "deadlock", "j1", "r1"),
         Event(0.25, "deadlock", "", "r2"),
         Event(0.25, "deadlock", "", "r3"),
+        Event(0.25, "deadlock", "", "r4"),
         Event(0.75, "arrived", "j1", "r1", "st1"),
     ]
-    goals = {(0.25, "r1"): (2.0, 0.0), (0.25, "r2"): (8.0, 0.0), (0.25, "r3"): (0.0, 9.0)}
+    goals = {
+        (0.25, "r1"): (2.0, 0.0),
+        (0.25, "r2"): (8.0, 0.0),
+        (0.25, "r3"): (0.0, 9.0),
+        (0.25, "r4"): (3.0, 6.0),  # its home then
+    }
     fate = bench.deadlock_outcomes(w, goals)
-    assert [fate[k] for k in bench.FATES] == [1, 1, 0, 1]
+    assert [fate[k] for k in bench.FATES] == [2, 1, 0, 1]
     assert fate["with a job"] == {"reached": 1, "progressed": 0, "handed back": 0, "none": 0}
-    assert fate["heading home"] == {"reached": 0, "progressed": 1, "handed back": 0, "none": 1}
+    assert fate["heading home"] == {"reached": 1, "progressed": 1, "handed back": 0, "none": 1}
 
 
 def test_robots_short_of_home_are_those_idle_robots_off_their_home() -> None:
