@@ -287,7 +287,7 @@ def deadlock_outcomes(world: World, goals: dict[tuple[float, str], tuple[float, 
     and the median time (s) from the event to progress."""
     tol = world.scenario.arrival_tolerance_m
     events = world.recorder.events
-    out: dict[str, Any] = {"reached": 0, "progressed": 0, "handed back": 0, "none": 0}
+    out: dict[str, Any] = dict.fromkeys(FATES, 0)
     # The same, apart: robots with a job at the event, and robots heading home.
     out["with a job"] = dict.fromkeys(FATES, 0)
     out["heading home"] = dict.fromkeys(FATES, 0)

@@ -7,9 +7,9 @@ and (with other robots about and ``avoid_robots``) clear of every neighbour's pr
 position, between the steps too, or no braking path stays in the free space; else braking
 (`fallback.brake`), by the first of its brakes that keeps clear of the neighbours' predicted
 positions where one does (straight on, a robot at rest stood in the way:
-`fallback.free_brake`). Either way the
-controller then plans a new trip. It lives apart from `fallback`, whose braking paths
-`neighbours` builds on, because it asks `neighbours` whether the shifted plan keeps clear.
+`fallback.free_brake`). Either way the controller then plans a new trip. It lives apart from
+`fallback`, whose braking paths `neighbours` builds on, because it asks `neighbours` whether
+the shifted plan keeps clear.
 
 The previous plan was solved in the floor's regions, so it stays in the free space to rest;
 a braking path need not: a plan that turns along a wall leaves the robot, one step on, where
