@@ -60,7 +60,8 @@ the issue), with the first line of its message.
 Prints counts per finding kind, the engine's own counts (violations, deadlocks, fallbacks,
 stuck robots) side by side, the median wall time per floor, and saves each failing case under
 --out as a folder (floor.toml, scen.toml, findings.txt with the command that reruns it);
---out/results.jsonl gets one line per case as it finishes.
+--out/results.jsonl gets one line per case as it finishes, appended to the rows already there
+(a run resumed with --first adds to its file; the start line says how many rows were there).
 
     python scripts/fuzz_floors.py --floors 1000 --seed 1 --workers 2 --out fuzz-out
     python scripts/fuzz_floors.py --controller mpc --floors 50
@@ -1550,11 +1551,15 @@ def main(argv: Iterable[str] | None = None) -> int:
             print(case.write(args.write / case.name), case.note)
             return 0
         args.first, args.floors = args.only, 1
+    # Rows of an earlier run stay in the file: say so, lest they be counted as this run's.
+    log = args.out / "results.jsonl"
+    earlier = sum(1 for _ in log.open(encoding="utf-8")) if log.is_file() else 0
     print(
         f"fuzz floors: {args.floors} floors from index {args.first}, seed {args.seed}, "
         f"controller {args.controller}, {args.workers} worker(s); failing cases to {args.out}"
         + (f"; MPC options {dict(args.mpc_option)}" if args.mpc_option else "")
         + (f"; {args.fleet[0]}-{args.fleet[1]} robots a case" if args.fleet else "")
+        + (f"; appending to {log} ({earlier} earlier row{'s' * (earlier != 1)})" if earlier else "")
     )
     start = time.perf_counter()
     tally = fuzz(

@@ -106,6 +106,16 @@ def test_a_sample_of_random_floors_gives_no_findings(tmp_path, seed, index, cont
     assert o.findings == []
 
 
+def test_a_run_into_a_folder_with_results_says_it_appends_to_them(tmp_path, capsys):
+    argv = ["--seed", "1", "--first", "4", "--floors", "1", "--quick", "--out", str(tmp_path)]
+    argv += ["--controller", "follower"]
+    assert fz.main(argv) == 0
+    assert "appending" not in capsys.readouterr().out
+    assert fz.main(argv) == 0
+    assert f"appending to {tmp_path / 'results.jsonl'} (1 earlier row)" in capsys.readouterr().out
+    assert len((tmp_path / "results.jsonl").read_text().splitlines()) == 2
+
+
 def test_the_generator_is_reproducible_and_writes_cases_the_oracle_reads(tmp_path):
     a, b = fz.generate_case(3, 17), fz.generate_case(3, 17)
     assert fz.dump_toml(a.floor) == fz.dump_toml(b.floor)
