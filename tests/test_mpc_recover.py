@@ -316,7 +316,7 @@ def test_a_failed_solve_as_a_print_starts_brakes_rather_than_follow_a_plan_over_
     cmd, kept = fall_back(obs, SPEC, c.horizon, floor, last, True, True, report)
     assert cmd.status is ControlStatus.FALLBACK and cmd.solve is report
     vx, vy = obs.vx + dt * cmd.ax, obs.vy + dt * cmd.ay
-    if cap < 1.0:  # the plan breaks the cap: a brake (before: the plan, on to 0.34 m/s)
+    if cap < 1.0:  # the plan breaks the cap: a brake (before: the plan, on to 1.02 m/s)
         assert kept is None
         assert abs(vx) <= abs(obs.vx) and abs(vy) <= abs(obs.vy)
     else:  # within a cap it keeps: the plan, one step on
