@@ -135,6 +135,17 @@ def test_path_goes_around_the_machine_close_to_its_corners():
     assert path.waypoints[0].tolist() == [1, 5] and path.waypoints[-1].tolist() == [9, 5]
 
 
+def test_string_pulling_goes_on_past_a_leg_that_is_not_free(recwarn):
+    # The first leg crosses the machine; (7, 3) -> (7, 7) is straight and as quick as the two
+    # legs through (7, 5). Past the unfree leg the route's times were inf - inf = NaN, so
+    # (7, 5) was kept, with a RuntimeWarning (fuzz seed 113, twice in 1,000 floors).
+    graph = PathPlanner(hall(), v_max=1.0, a_max=0.5)._portal_graph
+    pts = [np.array(p, dtype=float) for p in [(1, 4.5), (9, 4.5), (7, 3), (7, 5), (7, 7)]]
+    assert graph._limits.segment_time(pts[0], pts[1]) is None
+    assert graph._pull(pts) == [0, 2, 4]
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
 def test_travel_time_uses_per_axis_limits():
     # With 1 m/s on each axis, a leg takes max(|dx|, |dy|) seconds: diagonals are not slower.
     planner = PathPlanner(hall())

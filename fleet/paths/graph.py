@@ -320,7 +320,11 @@ class PortalGraph:
         line without being slower than the route through the points in between.
         """
         times = [self._limits.segment_time(a, b) for a, b in zip(pts[:-1], pts[1:], strict=True)]
-        cum = np.concatenate([[0.0], np.cumsum([np.inf if t is None else t for t in times])])
+        # The route's time from i to j is inf if a leg in between is not free, else the sum of
+        # its legs. (Summed as inf, past such a leg every later pair gave inf - inf = NaN, and
+        # the pulling stopped there, with a RuntimeWarning.)
+        cum = np.concatenate([[0.0], np.cumsum([0.0 if t is None else t for t in times])])
+        unfree = np.concatenate([[0], np.cumsum([t is None for t in times])])
         keep = [0]
         last = len(pts) - 1
         while keep[-1] < last:
@@ -328,7 +332,8 @@ class PortalGraph:
             j = last
             while j > i + 1:
                 t = self._limits.segment_time(pts[i], pts[j])
-                if t is not None and t <= cum[j] - cum[i] + 1e-12:
+                route = np.inf if unfree[j] > unfree[i] else cum[j] - cum[i]
+                if t is not None and t <= route + 1e-12:
                     break
                 j -= 1
             keep.append(j)
