@@ -97,6 +97,8 @@ from shapely.geometry.base import BaseGeometry
 from shapely.ops import nearest_points, unary_union
 
 REPO = Path(__file__).resolve().parents[1]
+#: One line per case in --out, as each finishes (appended to: a resumed run adds to it).
+RESULTS = "results.jsonl"
 
 #: Lengths (m) and speeds (m/s) within these of a limit are rounding, not findings.
 LENGTH_TOL = 1e-6
@@ -1440,7 +1442,7 @@ def fuzz(
     if progress is not None:
         next(progress)
 
-    log = (out_dir / "results.jsonl").open("a", encoding="utf-8")
+    log = (out_dir / RESULTS).open("a", encoding="utf-8")
 
     def take(o: Outcome) -> None:
         tally.add(o)
@@ -1552,8 +1554,8 @@ def main(argv: Iterable[str] | None = None) -> int:
             return 0
         args.first, args.floors = args.only, 1
     # Rows of an earlier run stay in the file: say so, lest they be counted as this run's.
-    log = args.out / "results.jsonl"
-    earlier = sum(1 for _ in log.open(encoding="utf-8")) if log.is_file() else 0
+    log = args.out / RESULTS
+    earlier = len(log.read_text(encoding="utf-8").splitlines()) if log.is_file() else 0
     print(
         f"fuzz floors: {args.floors} floors from index {args.first}, seed {args.seed}, "
         f"controller {args.controller}, {args.workers} worker(s); failing cases to {args.out}"

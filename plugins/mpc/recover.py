@@ -34,7 +34,7 @@ import numpy as np
 
 from fleet.floor import Floor
 from fleet.plugins import Command, ControlStatus, Observation, RobotSpec, SolveReport
-from fleet_plugins.mpc.fallback import brake, follow_previous, free_brake, leaves_floor
+from fleet_plugins.mpc.fallback import brake, follow_previous, free_brake, leaves_floor, shifted
 from fleet_plugins.mpc.model import Solution
 from fleet_plugins.mpc.neighbours import clear_of_neighbours
 from fleet_plugins.mpc.reuse import within_caps
@@ -58,10 +58,12 @@ def fall_back(
     of the others, or when no brake stays in the free space of the `floor`
     (`fallback.free_brake`); else None (the robot brakes)."""
     if on_plan:
-        assert last is not None and last.p is not None and last.v is not None
-        keep = within_caps(obs, spec, np.vstack([last.v[1:], np.zeros((1, 2))]))
+        assert last is not None
+        later = shifted(last)
+        assert later.p is not None and later.v is not None
+        keep = within_caps(obs, spec, later.v)
         if keep and obs.neighbours and avoid_robots:
-            keep = clear_of_neighbours(obs, spec, np.vstack([last.p[1:], last.p[-1:]]))
+            keep = clear_of_neighbours(obs, spec, later.p)
         on_plan = keep or (floor is not None and free_brake(obs, spec, floor) is None)
     if on_plan:
         assert last is not None
