@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, box
 
 from fleet.engine import World
-from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M, Aside, MakeWay
+from fleet.engine.makeway import AWAY_M, HOLD_FACTOR, OTHERS_M, Aside, MakeWay, kept_gap
 from fleet.scenario import load_scenario, sensing_needed
 
 CASE = Path(__file__).resolve().parent / "cases" / "via_parked_robot"
@@ -272,3 +272,47 @@ def test_a_robot_at_rest_a_rounding_off_its_goal_is_parked_and_let_out(world3: W
     finally:
         for robot in (idle, stuck, third):
             robot.aside, robot.watched_goal = None, None
+
+
+ZIGZAG = Path(__file__).resolve().parent / "liveness_cases" / "aside_by_a_zigzag"
+
+
+def test_the_way_aside_is_the_path_the_robot_drives_not_the_straight_line() -> None:
+    # Fuzz s113-0449 (MPC), the robots as they stood at 115.4 s: r01 (to st1) and r05 (west to
+    # st2) stuck face to face south of a triangle with a 0.29 m/s zone round it, r02 west of
+    # r01, the wall south. r05 had no spot off r01's route, so r01 backed off r05's: to a
+    # spot 1.42 m north, judged by the straight leg there. Zone limits hold per axis, so the
+    # path layer's quickest way there runs east to within 0.58 m of r05 and back on a
+    # diagonal (4.76 s against 4.83 s straight); r01's controller tracked that way, set off
+    # north and braked back every 2 s, and r05 stayed stuck until 200.6 s. A robot is now sent
+    # only where the path it will track keeps clear of the others (here: nowhere, so the
+    # deadlock stays reported).
+    w = World(load_scenario(ZIGZAG / "scen.toml"))
+    try:
+        at = {
+            "r01": (5.7445, 29.50),
+            "r02": (4.67, 29.35),
+            "r03": (7.78, 29.36),
+            "r04": (-2.20, 32.59),
+            "r05": (6.7605, 29.23),
+            "r06": (8.79, 29.17),
+        }
+        for rid, (x, y) in at.items():
+            w.robots[rid].x, w.robots[rid].y = x, y
+        r01, r05 = w.robots["r01"], w.robots["r05"]
+        st1, st2 = w.floor.station("st1"), w.floor.station("st2")
+        r01.watched_goal, r05.watched_goal = (st1.x, st1.y), (st2.x, st2.y)
+        fresh(w).ask(r01, (st1.x, st1.y), [r05], t=115.4)
+        sent = [rid for rid in at if w.robots[rid].aside is not None]
+        for rid in sent:
+            robot = w.robots[rid]
+            path = w.planner_for(robot.spec).path(at[rid], robot.aside.spot)
+            way = LineString(path.waypoints)
+            for other, p in at.items():
+                if other == rid:
+                    continue
+                gap = max(OTHERS_M, kept_gap(robot, w.robots[other]))
+                reach = min(2 * robot.spec.radius + gap, math.dist(at[rid], p))
+                assert way.distance(Point(p)) >= reach - 1e-6, (rid, other, robot.aside.spot)
+    finally:
+        w._close_bus()

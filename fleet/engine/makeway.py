@@ -210,11 +210,10 @@ class Spots:
         return None
 
     def _way(self, robot: RobotState, spot: tuple[float, float]) -> LineString | None:
-        """`robot`'s way to `spot`: straight if the free space holds the segment, else along
-        the path layer's path; None without one."""
-        leg = LineString([(robot.x, robot.y), spot])
-        if self.floor.free_space.covers(leg):
-            return leg
+        """`robot`'s way to `spot`: the path layer's path, the one its controller tracks; None
+        without one. Not the straight segment where that is free: zone limits hold per axis,
+        so the quickest way into a slow zone may run diagonally, off to one side and back
+        (fuzz s113-0449: a spot 1.42 m north, its path 0.58 m from the stuck robot east)."""
         try:
             return LineString(self.planner_for(robot.spec).path((robot.x, robot.y), spot).waypoints)
         except NoPathError:
